@@ -1,0 +1,23 @@
+"""hbjax: identification of Hammerstein systems with a hysteresis-backlash input
+nonlinearity (Giri et al.), in JAX."""
+
+from . import _config  # noqa: F401  (enables float64 before any array is made)
+from ._arx import ARX as ARX
+from ._backlash import Backlash as Backlash
+from ._defaults import default_design as default_design, default_system as default_system
+from ._giri import GiriResult as GiriResult, identify_giri as identify_giri, normalise as normalise
+from ._model import AbstractModel as AbstractModel, Hammerstein as Hammerstein
+from ._params import (
+    flatten_params as flatten_params,
+    param_names as param_names,
+    unflatten_params as unflatten_params,
+)
+from ._signals import GiriDesign as GiriDesign
+from ._simulate import play as play, predict as predict, simulate as simulate
+
+# --- refinement (issue 3) ---
+# --- monte carlo (issue 4) ---
+# --- diagnosis (issue 5) ---
+# --- io, datasets, cli (issue 6) ---
+
+__version__ = "0.1.0"

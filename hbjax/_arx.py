@@ -1,0 +1,53 @@
+"""The linear block: an ARX equation-error model, paper eqs. (2) and (10)."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._checks import as_float_array, is_traced
+
+
+class ARX(eqx.Module):
+    """``A(q^-1) y(t) = B(q^-1) u(t) + xi(t)``, paper eq. (10).
+
+    ``A = 1 + a[0] q^-1 + ... + a[na-1] q^-na`` and ``B = b[0] q^-1 + ... + b[nb-1] q^-nb``
+    (no direct feed-through; leading zeros in ``b`` express a delay). The orders ``na``,
+    ``nb`` are the static lengths of ``a`` and ``b``.
+    """
+
+    a: Float[Array, " na"]
+    b: Float[Array, " nb"]
+
+    def __init__(self, a, b):
+        a = as_float_array(a, "a", ndim=1)
+        b = as_float_array(b, "b", ndim=1)
+        if b.shape[0] == 0:
+            raise ValueError("`b` must hold at least one coefficient (nb >= 1), got shape (0,).")
+        if not (is_traced(a) or is_traced(b)):
+            if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+                raise ValueError("`a` and `b` must be finite.")
+        self.a = a
+        self.b = b
+
+    @property
+    def na(self) -> int:
+        return self.a.shape[0]
+
+    @property
+    def nb(self) -> int:
+        return self.b.shape[0]
+
+    def poles(self):
+        """Roots of ``z^na A(z^-1)``; assumption A3 asks them strictly inside the unit circle."""
+        return jnp.roots(jnp.concatenate([jnp.ones(1), self.a]), strip_zeros=False)
+
+    def is_stable(self) -> bool:
+        """Assumption A3 (concrete models only)."""
+        if self.na == 0:
+            return True
+        return bool(np.all(np.abs(np.roots(np.concatenate([[1.0], np.asarray(self.a)]))) < 1))
+
+    def static_gain_numerator(self):
+        """``B(1)``, nonzero under assumption A5."""
+        return jnp.sum(self.b)

@@ -1,0 +1,73 @@
+"""The hysteresis-backlash HB(P1, P2): a play operator between two polynomial branches."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._checks import as_float_array, is_traced
+
+
+def polyval_ascending(c: Float[Array, " m"], v):
+    """``c[0] + c[1] v + ... + c[m-1] v^(m-1)`` by Horner's rule (paper eq. (1))."""
+    out = jnp.zeros_like(v) + c[-1]
+    for k in range(c.shape[0] - 2, -1, -1):
+        out = out * v + c[k]
+    return out
+
+
+class Backlash(eqx.Module):
+    """Hysteresis-backlash flanked by two polynomials, paper eq. (1) and Fig. 2.
+
+    ``P1(v) = sum_i c1[i] v^i`` is the branch a large rising input drives the output onto,
+    ``P2`` the branch of a large falling input. The operator is the generalised play
+    ``u(t) = min(max(u(t-1), L(v(t))), H(v(t)))`` with ``L = min(P1, P2)`` and
+    ``H = max(P1, P2)`` pointwise (``docs/conventions.md``).
+
+    **Arguments:**
+
+    - `c1`: coefficients of ``P1`` in ascending powers, shape ``(m,)``.
+    - `c2`: coefficients of ``P2`` in ascending powers, shape ``(m,)``.
+    """
+
+    c1: Float[Array, " m"]
+    c2: Float[Array, " m"]
+
+    def __init__(self, c1, c2):
+        c1 = as_float_array(c1, "c1", ndim=1)
+        c2 = as_float_array(c2, "c2", ndim=1)
+        if c1.shape[0] == 0:
+            raise ValueError("`c1` must hold at least one coefficient, got shape (0,).")
+        if c1.shape != c2.shape:
+            raise ValueError(
+                "`c1` and `c2` must have the same length m (the paper's common degree "
+                f"m-1), got {c1.shape[0]} and {c2.shape[0]}."
+            )
+        if not (is_traced(c1) or is_traced(c2)):
+            if not (jnp.all(jnp.isfinite(c1)) and jnp.all(jnp.isfinite(c2))):
+                raise ValueError("`c1` and `c2` must be finite.")
+        self.c1 = c1
+        self.c2 = c2
+
+    @property
+    def m(self) -> int:
+        """Number of coefficients per branch (polynomial degree + 1)."""
+        return self.c1.shape[0]
+
+    def p1(self, v):
+        """Rising branch ``P1(v)``."""
+        return polyval_ascending(self.c1, v)
+
+    def p2(self, v):
+        """Falling branch ``P2(v)``."""
+        return polyval_ascending(self.c2, v)
+
+    def band(self, v) -> tuple[jax.Array, jax.Array]:
+        """``(L(v), H(v))``, the band the play operator keeps its output in."""
+        a, b = self.p1(v), self.p2(v)
+        return jnp.minimum(a, b), jnp.maximum(a, b)
+
+    def step(self, u_prev, v):
+        """One sample of the play operator: clamp the last output into the band at v."""
+        low, high = self.band(v)
+        return jnp.minimum(jnp.maximum(u_prev, low), high)

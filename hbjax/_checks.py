@@ -1,0 +1,71 @@
+"""Input validation shared by the public entry points.
+
+Shapes and types are checked in Python (at trace time) with messages naming the
+argument; values are checked eagerly when concrete and with ``eqx.error_if`` when traced.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def is_traced(x) -> bool:
+    return isinstance(x, jax.core.Tracer)
+
+
+def as_float_array(x, name: str, ndim: int | None = None) -> jax.Array:
+    """Convert ``x`` to a float64 JAX array, naming ``name`` in any error."""
+    if isinstance(x, (str, bytes)) or x is None:
+        raise TypeError(f"`{name}` must be a numeric array, got {type(x).__name__}.")
+    if not is_traced(x):
+        arr = np.asarray(x)
+        if arr.dtype == object or not (
+            np.issubdtype(arr.dtype, np.number) or arr.dtype == bool
+        ):
+            raise TypeError(f"`{name}` must be a numeric array, got dtype {arr.dtype}.")
+        if np.iscomplexobj(arr):
+            raise TypeError(f"`{name}` must be real, got complex dtype {arr.dtype}.")
+    out = jnp.asarray(x, dtype=jnp.float64)
+    if ndim is not None and out.ndim != ndim:
+        raise ValueError(
+            f"`{name}` must be a {ndim}-D array, got shape {tuple(out.shape)}."
+        )
+    return out
+
+
+def check_finite(x: jax.Array, name: str) -> jax.Array:
+    """Refuse NaN/inf: eagerly when concrete, with ``eqx.error_if`` under jit."""
+    if is_traced(x):
+        return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), f"`{name}` contains NaN or inf.")
+    bad = np.flatnonzero(~np.isfinite(np.asarray(x)))
+    if bad.size:
+        raise ValueError(
+            f"`{name}` contains NaN or inf ({bad.size} samples, first at index {bad[0]})."
+        )
+    return x
+
+
+def signal(x, name: str, *, min_length: int = 1) -> jax.Array:
+    """A finite 1-D float64 time series of at least ``min_length`` samples."""
+    arr = as_float_array(x, name, ndim=1)
+    if arr.shape[0] < min_length:
+        raise ValueError(
+            f"`{name}` must have at least {min_length} samples, got {arr.shape[0]}."
+        )
+    return check_finite(arr, name)
+
+
+def same_length(**arrays) -> None:
+    lengths = {k: int(v.shape[0]) for k, v in arrays.items()}
+    if len(set(lengths.values())) > 1:
+        desc = ", ".join(f"`{k}` has {n}" for k, n in lengths.items())
+        raise ValueError(f"records must have equal lengths: {desc} samples.")
+
+
+def positive_int(x, name: str, *, minimum: int = 1) -> int:
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer)):
+        raise TypeError(f"`{name}` must be an integer, got {x!r}.")
+    if x < minimum:
+        raise ValueError(f"`{name}` must be an integer >= {minimum}, got {x}.")
+    return int(x)

@@ -1,0 +1,291 @@
+"""The paper's closed-form identification, sections 4-5: offset (16)-(17), least squares
+(26) for ``A`` and ``B* = mu B``, Vandermonde solves (45)-(46) for ``C1*`` and ``C2*``."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ._arx import ARX
+from ._backlash import Backlash
+from ._checks import as_float_array, check_finite, is_traced
+from ._config import require_x64
+from ._model import Hammerstein, lagged
+from ._signals import GiriDesign
+
+
+# Result codes (also used by the Monte Carlo study to exclude failed realisations).
+SUCCESS = 0
+NONFINITE = 1
+SINGULAR_LS = 2
+ZERO_STATIC_GAIN = 3
+GAP_NOT_CROSSED = 4
+SINGULAR_VANDERMONDE = 5
+RESULT_MESSAGES = {
+    SUCCESS: "success",
+    NONFINITE: "non-finite values in the records or the estimate",
+    SINGULAR_LS: "the least-squares system (26) is singular: v2 does not excite A, B*",
+    ZERO_STATIC_GAIN: "B*(1) is not significantly different from 0 (assumption A5 fails)",
+    GAP_NOT_CROSSED: (
+        "the data contradict the design: v = +h_m does not put the output on P1 and "
+        "v = -h_m on P2 (P2*(-h_m) - P1*(h_m) should be 1); increase h_m (assumption A4)"
+    ),
+    SINGULAR_VANDERMONDE: "the Vandermonde systems (45)-(46) are singular",
+}
+_COND_LIMIT = 1e12
+# The normalisation makes P2*(-h_m) - P1*(h_m) = 1 (section 4.1); stage 3 measures both
+# values independently, so a large departure means the +-h_m swing did not cross the gap.
+_GAP_TOLERANCE = 0.5
+
+
+class GiriResult(eqx.Module):
+    """What :func:`identify_giri` found, and what a user needs to judge it.
+
+    - `model`: the estimated normalised :class:`hbjax.Hammerstein` (``A``, ``B*``, ``P1*``, ``P2*``).
+    - `offset`: ``ybar1``, the mean of the v1 experiment (eq. (17)).
+    - `transient`: samples of ``y1`` discarded before averaging.
+    - `samples_offset`, `rows_ls`, `plateaus`: samples used by each stage (plateaus per level).
+    - `cond_ls`: condition number of the normal matrix of (26).
+    - `cond_vandermonde`: condition numbers ``(raw, scaled)`` of the larger of (45)-(46).
+    - `gap`: measured ``P2*(-h_m) - P1*(h_m)`` (1 when the design assumptions hold).
+    - `noise_std`: residual standard deviation of the LS stage (estimate of ``std(xi)``).
+    - `b_star_sum_std`: standard error of ``B*(1)``.
+    - `result`: integer code, 0 on success (see `message`).
+    """
+
+    model: Hammerstein
+    offset: Float[Array, ""]
+    transient: Int[Array, ""]
+    samples_offset: Int[Array, ""]
+    rows_ls: int = eqx.field(static=True)
+    plateaus: Int[Array, " 2m"]
+    cond_ls: Float[Array, ""]
+    cond_vandermonde: Float[Array, " 2"]
+    gap: Float[Array, ""]
+    noise_std: Float[Array, ""]
+    b_star_sum_std: Float[Array, ""]
+    result: Int[Array, ""]
+
+    @property
+    def message(self) -> str:
+        return RESULT_MESSAGES[int(self.result)]
+
+
+def normalise(model: Hammerstein, h_m) -> Hammerstein:
+    """The model in the paper's normalisation (section 4.1, eqs. (11)-(13)).
+
+    ``M1 = P1(h_m)``, ``M2 = P2(-h_m)``, ``mu = M2 - M1``; returns
+    ``(A, mu B, P1/mu, P2/mu)``, so that ``M2* - M1* = 1``. Input-output behaviour is
+    unchanged (for ``u0 = 0``).
+    """
+    if not isinstance(model, Hammerstein):
+        raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    h_m = as_float_array(h_m, "h_m")
+    if h_m.ndim != 0:
+        raise ValueError(f"`h_m` must be a scalar, got shape {tuple(h_m.shape)}.")
+    if not is_traced(h_m) and not float(h_m) > 0:
+        raise ValueError(f"`h_m` must be > 0, got {float(h_m)}.")
+    bl = model.backlash
+    mu = bl.p2(-h_m) - bl.p1(h_m)
+    if is_traced(mu):
+        mu = eqx.error_if(mu, mu == 0, "mu = P2(-h_m) - P1(h_m) is 0: cannot normalise.")
+    elif float(mu) == 0.0:
+        raise ValueError(
+            "mu = P2(-h_m) - P1(h_m) is 0 for this `model` and `h_m`: the normalisation "
+            "(section 4.1) cannot be applied; the +-h_m swing must cross the backlash gap."
+        )
+    return Hammerstein(Backlash(bl.c1 / mu, bl.c2 / mu), ARX(model.arx.a, model.arx.b * mu))
+
+
+def _offset(y1, transient):
+    t = jnp.arange(y1.shape[0])
+    # v1(0) = 0, so the first sample is never on P1; the transient of A is discarded too.
+    w = (t >= jnp.maximum(transient, 1)).astype(y1.dtype)
+    count = jnp.sum(w)
+    return jnp.sum(w * y1) / count, count.astype(int)
+
+
+def _least_squares(design, y2, offset):
+    """Eq. (26) on the regression (23), rows ``t = n..T-1``."""
+    n = design.n
+    y_tilde = y2 - offset
+    u_tilde = jnp.asarray(design.binary_internal(y2.shape[0]))
+    # Before t = 0 the ARX block rests at zero, so y~(t<0) = -ybar1 and u~(t<0) = -M1*;
+    # starting the rows at t = n uses recorded samples only.
+    cols = [-lagged(y_tilde, i) for i in range(1, n + 1)]
+    cols += [lagged(u_tilde, i) for i in range(1, n + 1)]
+    phi = jnp.stack(cols, axis=1)[n:]
+    target = y_tilde[n:]
+    rows = phi.shape[0]
+    gram = phi.T @ phi / rows
+    # Equilibrate before solving so the condition number reflects the design, not units.
+    scale = jnp.sqrt(jnp.diag(gram))
+    scale = jnp.where(scale > 0, scale, 1.0)
+    gram_s = gram / jnp.outer(scale, scale)
+    theta = jnp.linalg.solve(gram_s, (phi.T @ target / rows) / scale) / scale
+    eig = jnp.linalg.eigvalsh(gram_s)
+    cond = eig[-1] / jnp.maximum(eig[0], 1e-300)
+    resid = target - phi @ theta
+    noise_var = jnp.sum(resid**2) / jnp.maximum(rows - 2 * n, 1)
+    cov = noise_var * jnp.linalg.inv(gram_s) / jnp.outer(scale, scale) / rows
+    b_cov = cov[n:, n:]
+    b_sum_std = jnp.sqrt(jnp.maximum(jnp.sum(b_cov), 0.0))
+    return theta[:n], theta[n:], cond, jnp.sqrt(noise_var), b_sum_std, rows
+
+
+def _transient_length(a, limit):
+    """Smallest power of two K with ||C^K|| < 1e-10 for the companion matrix C of A:
+    after K samples the step response of v1 has settled to machine-visible precision."""
+    n = a.shape[0]
+    companion = jnp.zeros((n, n)).at[0].set(-a)
+    if n > 1:
+        companion = companion.at[1:, :-1].set(jnp.eye(n - 1))
+
+    def body(carry, _):
+        power, k, done = carry
+        settled = jnp.linalg.norm(power) < 1e-10
+        k = jnp.where(done | settled, k, 2 * k)
+        return (power @ power, k, done | settled), None
+
+    (_, k, _), _ = jax.lax.scan(body, (companion, jnp.array(1), jnp.array(False)), None, length=40)
+    return jnp.minimum(k, limit)
+
+
+def _vandermonde(levels, values, h_m):
+    """Solve ``V c = values`` (eqs. (45)-(46)) in the scaled variable ``x = level / h_m``."""
+    m = levels.shape[0]
+    powers = jnp.arange(m)
+    v_scaled = (levels[:, None] / h_m) ** powers[None, :]
+    coef_scaled, *_ = jnp.linalg.lstsq(v_scaled, values)
+    s = jnp.linalg.svd(v_scaled, compute_uv=False)
+    s_raw = jnp.linalg.svd(levels[:, None] ** powers[None, :], compute_uv=False)
+    return coef_scaled / h_m**powers, s_raw[0] / s_raw[-1], s[0] / s[-1]
+
+
+def _stage3(design, y3, a, b_star_sum):
+    n, m = design.n, design.m
+    t_inst, j_inst = design.estimation_instants(y3.shape[0])
+    z = y3
+    for i in range(n):
+        z = z + a[i] * lagged(y3, i + 1)
+    onehot = (j_inst[None, :] == np.arange(2 * m)[:, None]).astype(float)
+    counts = onehot.sum(axis=1)
+    z_bar = (jnp.asarray(onehot) @ z[t_inst]) / counts / b_star_sum
+    levels = jnp.asarray(design.staircase_levels())
+    c1, cond1_raw, cond1 = _vandermonde(levels[:m], z_bar[:m], design.h_m)
+    c2, cond2_raw, cond2 = _vandermonde(levels[m:], z_bar[m:], design.h_m)
+    conds = jnp.stack([jnp.maximum(cond1_raw, cond2_raw), jnp.maximum(cond1, cond2)])
+    # Level j = 0 is +h_m on P1 and level j = m is -h_m on P2: M1* and M2*.
+    gap = z_bar[m] - z_bar[0]
+    return c1, c2, conds, gap, jnp.asarray(counts.astype(int))
+
+
+def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
+    """Traceable core of :func:`identify_giri`: never raises on values, sets `result`."""
+    finite = jnp.all(jnp.isfinite(y1)) & jnp.all(jnp.isfinite(y2)) & jnp.all(jnp.isfinite(y3))
+    if transient is None:
+        # A first offset from the second half of y1 (past any transient), then the
+        # transient length from the estimated A, then the final offset.
+        half = y1.shape[0] // 2
+        offset0, _ = _offset(y1, half)
+        a0, *_ = _least_squares(design, y2, offset0)
+        transient = _transient_length(a0, half)
+    transient = jnp.asarray(transient)
+    offset, used = _offset(y1, transient)
+    a, b_star, cond_ls, noise_std, b_sum_std, rows = _least_squares(design, y2, offset)
+    b_sum = jnp.sum(b_star)
+    c1, c2, cond_v, gap, plateaus = _stage3(design, y3, a, b_sum)
+    model = Hammerstein(Backlash(c1, c2), ARX(a, b_star))
+    params = jnp.concatenate([a, b_star, c1, c2])
+    zero_gain = jnp.abs(b_sum) <= 4 * b_sum_std + 1e-8 * jnp.sum(jnp.abs(b_star))
+    code = jnp.select(
+        [
+            ~finite,
+            ~(cond_ls < _COND_LIMIT),
+            zero_gain,
+            ~jnp.all(jnp.isfinite(params)) | ~(cond_v[1] < _COND_LIMIT),
+            ~(jnp.abs(gap - 1.0) <= _GAP_TOLERANCE),
+        ],
+        [NONFINITE, SINGULAR_LS, ZERO_STATIC_GAIN, SINGULAR_VANDERMONDE, GAP_NOT_CROSSED],
+        SUCCESS,
+    )
+    return GiriResult(
+        model, offset, transient, used, rows, plateaus, cond_ls, cond_v, gap, noise_std,
+        b_sum_std, code,
+    )
+
+
+_estimate_jit = eqx.filter_jit(estimate_giri)
+
+
+def _record(y, name, minimum, what):
+    y = as_float_array(y, name, ndim=1)
+    if y.shape[0] < minimum:
+        raise ValueError(
+            f"`{name}` has {y.shape[0]} samples; it must cover at least {what} "
+            f"({minimum} samples)."
+        )
+    return check_finite(y, name)
+
+
+def _check_input_record(design, v, name, expected):
+    v = np.asarray(as_float_array(v, name, ndim=1))
+    if name == "v2":
+        off = ~np.isclose(np.abs(v), design.h_m, rtol=0, atol=1e-12 * design.h_m)
+        if off.any():
+            i = int(np.flatnonzero(off)[0])
+            raise ValueError(
+                f"`v2` must take values in {{-h_m, +h_m}} = {{{-design.h_m}, {design.h_m}}}; "
+                f"sample {i} is {v[i]}."
+            )
+    if v.shape != expected.shape or not np.allclose(v, expected, rtol=0, atol=1e-12 * design.h_m):
+        bad = int(np.flatnonzero(~np.isclose(v[: expected.size], expected[: v.size]))[0]) if v.shape == expected.shape else None
+        where = f" (first difference at sample {bad})" if bad is not None else f" (length {v.shape[0]} vs {expected.shape[0]})"
+        raise ValueError(f"`{name}` is not the design's signal{where}; generate it with GiriDesign.")
+
+
+def identify_giri(design: GiriDesign, y1, y2, y3, *, v1=None, v2=None, v3=None,
+                  transient=None, throw=True) -> GiriResult:
+    """Identify the normalised HB-Hammerstein model from the paper's three experiments.
+
+    1. Offset ``ybar1``: mean of ``y1`` (response to ``v1``, eq. (14)) after discarding a
+       transient, eqs. (16)-(17).
+    2. ``theta* = [a, b*]`` by least squares (26) on the regression (23) built from ``y2``
+       (response to ``v2``, eq. (27)), with ``u~`` known from eq. (28).
+    3. ``C1*``, ``C2*`` from ``y3`` (response to ``v3``, eq. (32)): at the last sample of
+       each plateau ``A(q^-1) y(t) = B*(1) P*(level) + xi(t)``; averaging over periods and
+       solving the Vandermonde systems (45)-(46) (in the scaled variable ``level/h_m``).
+
+    **Arguments:**
+
+    - `design`: the :class:`hbjax.GiriDesign` the experiments were run with.
+    - `y1`, `y2`, `y3`: the three output records (any lengths, each at least one period).
+    - `v1`, `v2`, `v3`: optionally the applied inputs, checked against the design.
+    - `transient`: samples of ``y1`` to discard; by default the settling time of the
+      estimated ``A`` (smallest power of two with ``||C^K|| < 1e-10``, C the companion
+      matrix), at most half the record.
+    - `throw`: raise ``ValueError`` on failure (default); otherwise inspect ``.result``.
+
+    **Returns:** a :class:`GiriResult`.
+    """
+    require_x64("identify_giri")
+    if not isinstance(design, GiriDesign):
+        raise TypeError(f"`design` must be an hbjax.GiriDesign, got {type(design).__name__}.")
+    y1 = _record(y1, "y1", 4, "a few samples of the v1 step")
+    y2 = _record(y2, "y2", design.binary_period, "one period 4n of v2")
+    y3 = _record(y3, "y3", design.staircase_period, "one period 2m(n+1) of v3")
+    for name, v, y, make in (("v1", v1, y1, design.constant_input),
+                             ("v2", v2, y2, design.binary_input),
+                             ("v3", v3, y3, design.staircase_input)):
+        if v is not None:
+            _check_input_record(design, v, name, make(y.shape[0]))
+    if transient is not None:
+        if isinstance(transient, bool) or not isinstance(transient, (int, np.integer)) or transient < 0:
+            raise ValueError(f"`transient` must be a non-negative integer, got {transient!r}.")
+        if transient >= y1.shape[0] - 1:
+            raise ValueError(f"`transient` ({transient}) leaves no sample of `y1` ({y1.shape[0]}).")
+    res = _estimate_jit(design, y1, y2, y3, transient)
+    if throw and not any(is_traced(x) for x in (y1, y2, y3)) and int(res.result) != SUCCESS:
+        raise ValueError(f"identify_giri failed: {res.message}.")
+    return res

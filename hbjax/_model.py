@@ -1,0 +1,107 @@
+"""The composite HB-Hammerstein model and the base class model extensions derive from."""
+
+import abc
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._arx import ARX
+from ._backlash import Backlash
+
+
+class AbstractModel(eqx.Module):
+    """A dynamic model from input ``v`` to output ``y`` that :func:`hbjax.simulate` and
+    :func:`hbjax.predict` can run. :class:`Hammerstein` is the paper's model; the
+    diagnosis module adds extensions (saturations, delays, drifts, ...) as subclasses.
+    """
+
+    @abc.abstractmethod
+    def simulate_trajectory(
+        self, v: Float[Array, " time"], noise: Float[Array, " time"], u0
+    ) -> Float[Array, " time"]:
+        """Free-run output for input ``v`` and equation error ``noise``."""
+
+    @abc.abstractmethod
+    def predict_trajectory(
+        self, v: Float[Array, " time"], y: Float[Array, " time"], u0
+    ) -> Float[Array, " time"]:
+        """One-step-ahead prediction of ``y`` from past ``y`` and ``v``."""
+
+
+def play_trajectory(backlash: Backlash, v: Float[Array, " time"], u0) -> Float[Array, " time"]:
+    """The play operator over a record, ``u(-1) = u0``."""
+
+    def step(u_prev, v_t):
+        u_t = backlash.step(u_prev, v_t)
+        return u_t, u_t
+
+    _, u = jax.lax.scan(step, jnp.asarray(u0, v.dtype), v)
+    return u
+
+
+def lagged(x: Float[Array, " time"], lag: int) -> Float[Array, " time"]:
+    """``x(t - lag)`` with ``x(t) = 0`` for ``t < 0`` (the zero initial conditions)."""
+    if lag == 0:
+        return x
+    return jnp.concatenate([jnp.zeros(lag, x.dtype), x[:-lag]])
+
+
+def arx_prediction(arx: ARX, u, y):
+    """``-sum_i a_i y(t-i) + sum_i b_i u(t-i)``: the deterministic part of eq. (10)."""
+    out = jnp.zeros_like(y)
+    for i in range(arx.na):
+        out = out - arx.a[i] * lagged(y, i + 1)
+    for i in range(arx.nb):
+        out = out + arx.b[i] * lagged(u, i + 1)
+    return out
+
+
+class Hammerstein(AbstractModel):
+    """The HB-Hammerstein model of paper eq. (10): ``u = HB(P1, P2)(v)``, then
+    ``A(q^-1) y = B(q^-1) u + xi``.
+
+    **Arguments:**
+
+    - `backlash`: a :class:`hbjax.Backlash`.
+    - `arx`: a :class:`hbjax.ARX`.
+    """
+
+    backlash: Backlash
+    arx: ARX
+
+    def __check_init__(self):
+        if not isinstance(self.backlash, Backlash):
+            raise TypeError(f"`backlash` must be an hbjax.Backlash, got {type(self.backlash).__name__}.")
+        if not isinstance(self.arx, ARX):
+            raise TypeError(f"`arx` must be an hbjax.ARX, got {type(self.arx).__name__}.")
+
+    def simulate_trajectory(self, v, noise, u0):
+        # One scalar carry per lag (a tuple, not a shifted array): orders are static, so
+        # the scan body is straight-line code and vmapping over a trailing batch axis of
+        # time-major arrays keeps every carry a contiguous vector.
+        a, b = self.arx.a, self.arx.b
+        na, nb = self.arx.na, self.arx.nb
+        zero = jnp.zeros((), v.dtype)
+
+        def step(carry, inputs):
+            u_play, y_lags, u_lags = carry
+            v_t, xi_t = inputs
+            y_t = xi_t
+            for i in range(na):
+                y_t = y_t - a[i] * y_lags[i]
+            for i in range(nb):
+                y_t = y_t + b[i] * u_lags[i]
+            u_t = self.backlash.step(u_play, v_t)
+            y_lags = ((y_t,) + y_lags[:-1]) if na else y_lags
+            u_lags = (u_t,) + u_lags[:-1]
+            return (u_t, y_lags, u_lags), y_t
+
+        init = (jnp.asarray(u0, v.dtype), (zero,) * na, (zero,) * nb)
+        _, y = jax.lax.scan(step, init, (v, noise))
+        return y
+
+    def predict_trajectory(self, v, y, u0):
+        u = play_trajectory(self.backlash, v, u0)
+        return arx_prediction(self.arx, u, y)
