@@ -50,6 +50,19 @@ class GiriDesign(eqx.Module):
         step = self.h_m / self.m
         return np.where(j < self.m, self.h_m + j * step, -self.h_m - (j - self.m) * step)
 
+    def check_model(self, model, name: str = "model") -> None:
+        """Raise if ``model``'s orders do not match the design (``na = nb = n``, ``m``)."""
+        from ._model import Hammerstein
+
+        if not isinstance(model, Hammerstein):
+            raise TypeError(f"`{name}` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+        na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
+        if (na, nb, m) != (self.n, self.n, self.m):
+            raise ValueError(
+                f"`{name}` has orders na={na}, nb={nb}, m={m} but the design expects "
+                f"na = nb = n = {self.n} and m = {self.m}."
+            )
+
     def constant_input(self, T) -> np.ndarray:
         """``v1``, eq. (14): ``v1(0) = 0`` and ``v1(t) = h_m`` for ``t > 0``."""
         T = positive_int(T, "T", minimum=2)

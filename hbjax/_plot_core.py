@@ -1,0 +1,69 @@
+"""Figures of the core: backlash loops, the paper's v3/u* (Figs. 3-4), outputs."""
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from ._simulate import play
+
+
+def _axes(ax):
+    if ax is None:
+        _, ax = plt.subplots(figsize=(5, 4))
+    return ax
+
+
+def plot_backlash(backlash, v_range, *, ax=None, label=None, color=None, sweep=True):
+    """Draw the branches ``P1`` (rising) and ``P2`` (falling) over ``v_range = (lo, hi)`` and,
+    with ``sweep``, the loop the play operator traces under a full triangular sweep."""
+    ax = _axes(ax)
+    lo, hi = v_range
+    v = np.linspace(lo, hi, 400)
+    line = ax.plot(v, np.asarray(backlash.p1(v)), color=color, lw=1, ls="--",
+                   label=None if label is None else f"{label}: P1, P2")[0]
+    ax.plot(v, np.asarray(backlash.p2(v)), color=line.get_color(), lw=1, ls="--")
+    if sweep:
+        v_loop = np.concatenate([np.linspace(0, hi, 200), np.linspace(hi, lo, 400),
+                                 np.linspace(lo, hi, 400)])
+        u = np.asarray(play(backlash, v_loop))
+        ax.plot(v_loop[200:], u[200:], color=line.get_color(), lw=2,
+                label=None if label is None else f"{label}: loop")
+    ax.set_xlabel("v")
+    ax.set_ylabel("u")
+    ax.grid(alpha=0.3)
+    if label is not None:
+        ax.legend(fontsize=8)
+    return ax
+
+
+def plot_staircase(design, backlash, *, periods=2, axes=None):
+    """The paper's Figs. 3-4: ``v3`` over a few periods and the internal signal ``u*``."""
+    if axes is None:
+        _, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    T = periods * design.staircase_period
+    v3 = design.staircase_input(T)
+    u = np.asarray(play(backlash, v3))
+    t = np.arange(T)
+    axes[0].step(t, v3, where="post")
+    axes[0].set_ylabel("v3(t)")
+    axes[0].set_title(f"v3, eq. (32): n={design.n}, m={design.m}, h_m={design.h_m:g}")
+    axes[1].step(t, u, where="post", color="C1")
+    axes[1].set_ylabel("u*(t)")
+    axes[1].set_xlabel("t")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    return axes
+
+
+def plot_output(y_measured, y_simulated, *, ax=None, labels=("measured", "simulated"), window=None):
+    """Measured vs simulated output (optionally only ``window = (start, stop)``)."""
+    ax = _axes(ax)
+    y_measured, y_simulated = np.asarray(y_measured), np.asarray(y_simulated)
+    start, stop = window if window is not None else (0, len(y_measured))
+    t = np.arange(start, stop)
+    ax.plot(t, y_measured[start:stop], lw=1, label=labels[0])
+    ax.plot(t, y_simulated[start:stop], lw=1, ls="--", label=labels[1])
+    ax.set_xlabel("t")
+    ax.set_ylabel("y")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    return ax

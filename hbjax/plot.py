@@ -1,0 +1,14 @@
+"""Plotting (matplotlib). The numerical core never imports this module.
+
+Re-exports the figures of each area: core figures (backlash loops, the paper's signals,
+measured vs simulated output), Monte Carlo study plots and diagnosis plots.
+"""
+
+from ._plot_core import (
+    plot_backlash as plot_backlash,
+    plot_output as plot_output,
+    plot_staircase as plot_staircase,
+)
+
+# --- monte carlo plots (issue 4) ---
+# --- diagnosis plots (issue 5) ---
