@@ -19,5 +19,12 @@ from ._simulate import play as play, predict as predict, simulate as simulate
 # --- monte carlo (issue 4) ---
 # --- diagnosis (issue 5) ---
 # --- io, datasets, cli (issue 6) ---
+from . import datasets as datasets
+from ._io import (
+    Recording as Recording,
+    load_recording as load_recording,
+    save_recording as save_recording,
+)
+from ._modelfile import load_model as load_model, save_model as save_model
 
 __version__ = "0.1.0"

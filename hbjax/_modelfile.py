@@ -1,0 +1,353 @@
+"""Model files: human-readable JSON that round-trips any hbjax model bit for bit.
+
+The serializer is generic over dataclass fields (every ``eqx.Module`` is a dataclass), so the
+paper's :class:`hbjax.Hammerstein` and extensions (subclasses of :class:`hbjax.AbstractModel`
+with array fields, static ints/floats/None, tuples and nested modules) share one format::
+
+    {"format": "hbjax-model", "format_version": 1, "hbjax_version": "0.1.0",
+     "kind": "Hammerstein",
+     "model": {"class": "hbjax._model.Hammerstein",
+               "fields": {"backlash": {"class": "hbjax._backlash.Backlash", "fields": {...}},
+                          "arx": {...}}}}
+
+Arrays are ``{"array": [...], "dtype": "float64", "shape": [2]}`` with every float written as
+the shortest decimal that reads back to the same float64 (Python's ``repr``), so
+``load_model(save_model(m))`` equals ``m`` bitwise. Non-finite floats are written as
+``{"float": "nan"}`` / ``"inf"`` / ``"-inf"`` (strict JSON has no NaN).
+
+Loading never imports code named by the file: a class is accepted only if it is an
+``eqx.Module`` defined in an hbjax module, a subclass of :class:`hbjax.AbstractModel` that is
+already defined in this process (e.g. a user's extension), or passed in ``classes=``. Models are
+rebuilt without calling ``__init__`` (fields set directly, as the dataclass stores them) and then
+checked with the classes' ``__check_init__``; any problem raises ``ValueError`` before a model
+is returned, so a corrupted file never gives a half-loaded model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import math
+import pathlib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._io import atomic_write
+from ._model import AbstractModel
+
+FORMAT = "hbjax-model"
+FORMAT_VERSION = 1
+_DTYPES = {"float64", "float32", "int64", "int32", "bool"}
+
+
+class ModelFileError(ValueError):
+    """A model file that is not valid JSON, not an hbjax model file, or inconsistent."""
+
+
+def _class_id(cls) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+# ----------------------------------------------------------------------------- encoding
+
+
+def _encode_float(x: float):
+    x = float(x)
+    if math.isfinite(x):
+        return x
+    return {"float": "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf")}
+
+
+def _encode(value, where: str):
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return _encode_float(value)
+    if isinstance(value, eqx.Module):
+        return _encode_module(value, where)
+    if isinstance(value, (jax.Array, np.ndarray)):
+        if isinstance(value, jax.core.Tracer):
+            raise TypeError(f"cannot save a traced array at `{where}` (save outside jit).")
+        arr = np.asarray(value)
+        dtype = str(arr.dtype)
+        if dtype not in _DTYPES:
+            raise TypeError(f"cannot save `{where}`: arrays of dtype {dtype} are not supported.")
+        flat = arr.reshape(-1).tolist()
+        if arr.dtype.kind == "f":
+            flat = [_encode_float(x) for x in flat]
+        kind = "numpy" if isinstance(value, np.ndarray) else "jax"
+        return {"array": flat, "dtype": dtype, "shape": list(arr.shape), "kind": kind}
+    if isinstance(value, tuple):
+        return {"tuple": [_encode(x, f"{where}[{i}]") for i, x in enumerate(value)]}
+    if isinstance(value, list):
+        return {"list": [_encode(x, f"{where}[{i}]") for i, x in enumerate(value)]}
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError(f"cannot save `{where}`: only dicts with string keys are supported.")
+        return {"dict": {k: _encode(x, f"{where}[{k!r}]") for k, x in value.items()}}
+    raise TypeError(
+        f"cannot save `{where}` of type {type(value).__name__}: model fields must be arrays, "
+        "numbers, strings, None, tuples/lists/dicts of these, or hbjax modules."
+    )
+
+
+def _encode_module(module: eqx.Module, where: str) -> dict:
+    fields = {}
+    for f in dataclasses.fields(module):
+        fields[f.name] = _encode(getattr(module, f.name), f"{where}.{f.name}")
+    return {"class": _class_id(type(module)), "fields": fields}
+
+
+def model_to_json(model: AbstractModel) -> str:
+    """The model-file text of ``model`` (see the module docstring for the layout)."""
+    from . import __version__
+
+    if not isinstance(model, AbstractModel):
+        raise TypeError(
+            f"`model` must be an hbjax model (a subclass of hbjax.AbstractModel), got "
+            f"{type(model).__name__}."
+        )
+    doc = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "hbjax_version": __version__,
+        "kind": type(model).__name__,
+        "model": _encode_module(model, "model"),
+    }
+    return json.dumps(doc, indent=1, allow_nan=False) + "\n"
+
+
+def save_model(path, model: AbstractModel, *, overwrite: bool = False) -> pathlib.Path:
+    """Save ``model`` to a human-readable JSON model file.
+
+    **Arguments:**
+
+    - `path`: the file to write (conventionally ``*.json``).
+    - `model`: any :class:`hbjax.AbstractModel`, e.g. :class:`hbjax.Hammerstein` or an
+      extension from the diagnosis; nested modules, arrays and static fields are all saved.
+    - `overwrite`: replace an existing file (default: refuse with ``FileExistsError``).
+
+    The file records the package version and the model kind; floats are written exactly, so
+    :func:`load_model` gives back a bitwise-equal model. The write is atomic (temporary file
+    in the same folder, then rename).
+
+    **Returns:** the path written.
+    """
+    return atomic_write(path, model_to_json(model), overwrite=overwrite)
+
+
+# ----------------------------------------------------------------------------- decoding
+
+
+def _all_subclasses(cls):
+    seen, stack = [], [cls]
+    while stack:
+        c = stack.pop()
+        for s in c.__subclasses__():
+            if s not in seen:
+                seen.append(s)
+                stack.append(s)
+    return seen
+
+
+def _resolve_class(class_id, extra, where: str):
+    if not isinstance(class_id, str):
+        raise ModelFileError(f"`{where}.class` must be a string, got {class_id!r}.")
+    for cls in list(extra) + [AbstractModel] + _all_subclasses(AbstractModel):
+        if _class_id(cls) == class_id:
+            return cls
+    module_name, _, qualname = class_id.rpartition(".")
+    if module_name == "hbjax" or module_name.startswith("hbjax."):
+        # Only hbjax's own modules are ever imported, and only eqx.Modules accepted from them.
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            module = None
+        obj = module
+        for part in qualname.split(".") if module is not None else ():
+            obj = getattr(obj, part, None)
+        if isinstance(obj, type) and issubclass(obj, eqx.Module) and _class_id(obj) == class_id:
+            return obj
+    raise ModelFileError(
+        f"unknown model class {class_id!r} at `{where}`: not an hbjax class nor an "
+        "hbjax.AbstractModel subclass defined in this process (define or import the extension "
+        "before loading, or pass it in `classes=`)."
+    )
+
+
+def _decode_float(x, where):
+    if isinstance(x, bool):
+        raise ModelFileError(f"`{where}` must be a number, got {x!r}.")
+    if isinstance(x, (int, float)):
+        return float(x)
+    if isinstance(x, dict) and set(x) == {"float"} and x["float"] in ("nan", "inf", "-inf"):
+        return float(x["float"])
+    raise ModelFileError(f"`{where}` must be a number, got {x!r}.")
+
+
+def _decode_array(obj, where):
+    if set(obj) - {"array", "dtype", "shape", "kind"} or not {"array", "dtype", "shape"} <= set(obj):
+        raise ModelFileError(f"`{where}` is a malformed array entry (keys {sorted(obj)}).")
+    dtype, shape, data = obj["dtype"], obj["shape"], obj["array"]
+    if dtype not in _DTYPES:
+        raise ModelFileError(f"`{where}` has unsupported dtype {dtype!r}.")
+    if not (isinstance(shape, list) and all(isinstance(s, int) and not isinstance(s, bool)
+                                            and s >= 0 for s in shape)):
+        raise ModelFileError(f"`{where}.shape` must be a list of sizes, got {shape!r}.")
+    if not isinstance(data, list) or len(data) != math.prod(shape):
+        raise ModelFileError(
+            f"`{where}` must hold {math.prod(shape)} values for shape {tuple(shape)}, got "
+            f"{len(data) if isinstance(data, list) else type(data).__name__}."
+        )
+    if dtype.startswith("float"):
+        values = [_decode_float(x, f"{where}[{i}]") for i, x in enumerate(data)]
+    elif dtype == "bool":
+        if not all(isinstance(x, bool) for x in data):
+            raise ModelFileError(f"`{where}` must hold booleans.")
+        values = data
+    else:
+        if not all(isinstance(x, int) and not isinstance(x, bool) for x in data):
+            raise ModelFileError(f"`{where}` must hold integers.")
+        values = data
+    arr = np.array(values, dtype=dtype).reshape(shape)
+    if obj.get("kind", "jax") == "numpy":
+        return arr
+    return jnp.asarray(arr)
+
+
+def _decode(obj, extra, where):
+    if obj is None or isinstance(obj, (bool, str, int, float)):
+        return obj
+    if isinstance(obj, list):
+        raise ModelFileError(f"`{where}`: bare JSON lists are not part of the format.")
+    if not isinstance(obj, dict):
+        raise ModelFileError(f"`{where}`: unexpected value {obj!r}.")
+    if "class" in obj:
+        return _decode_module(obj, extra, where)
+    if "array" in obj:
+        return _decode_array(obj, where)
+    if set(obj) == {"float"}:
+        return _decode_float(obj, where)
+    if set(obj) == {"tuple"} and isinstance(obj["tuple"], list):
+        return tuple(_decode(x, extra, f"{where}[{i}]") for i, x in enumerate(obj["tuple"]))
+    if set(obj) == {"list"} and isinstance(obj["list"], list):
+        return [_decode(x, extra, f"{where}[{i}]") for i, x in enumerate(obj["list"])]
+    if set(obj) == {"dict"} and isinstance(obj["dict"], dict):
+        return {k: _decode(x, extra, f"{where}[{k!r}]") for k, x in obj["dict"].items()}
+    raise ModelFileError(f"`{where}`: unrecognised entry with keys {sorted(obj)}.")
+
+
+def _decode_module(obj, extra, where):
+    if set(obj) != {"class", "fields"} or not isinstance(obj["fields"], dict):
+        raise ModelFileError(f"`{where}` must be an object with `class` and `fields`.")
+    cls = _resolve_class(obj["class"], extra, where)
+    if getattr(cls, "__abstractmethods__", None):
+        raise ModelFileError(f"`{where}`: class {obj['class']!r} is abstract.")
+    expected = [f.name for f in dataclasses.fields(cls)]
+    given = obj["fields"]
+    missing = [n for n in expected if n not in given]
+    unknown = [n for n in given if n not in expected]
+    if missing or unknown:
+        raise ModelFileError(
+            f"`{where}` ({cls.__name__}) does not match the class: missing fields {missing}, "
+            f"unknown fields {unknown}."
+        )
+    values = {n: _decode(given[n], extra, f"{where}.{n}") for n in expected}
+    module = object.__new__(cls)
+    for name, value in values.items():
+        object.__setattr__(module, name, value)
+    # The invariants the constructors would have enforced, most-derived class last.
+    for klass in reversed(cls.__mro__):
+        check = klass.__dict__.get("__check_init__")
+        if check is not None:
+            try:
+                check(module)
+            except Exception as exc:
+                raise ModelFileError(f"`{where}` ({cls.__name__}) is invalid: {exc}") from None
+    _check_arrays(module, cls, where)
+    return module
+
+
+def _check_arrays(module, cls, where):
+    # Backlash and ARX validate in __init__, not __check_init__: repeat their essentials here.
+    from ._arx import ARX
+    from ._backlash import Backlash
+
+    if isinstance(module, Backlash):
+        c1, c2 = module.c1, module.c2
+        if not (isinstance(c1, jax.Array) and isinstance(c2, jax.Array) and c1.ndim == 1
+                and c1.shape == c2.shape and c1.shape[0] >= 1 and c1.dtype == jnp.float64
+                and c2.dtype == jnp.float64):
+            raise ModelFileError(f"`{where}` (Backlash) needs c1, c2 float64 1-D of equal length >= 1.")
+        if not (np.all(np.isfinite(c1)) and np.all(np.isfinite(c2))):
+            raise ModelFileError(f"`{where}` (Backlash) has non-finite coefficients.")
+    if isinstance(module, ARX):
+        a, b = module.a, module.b
+        if not (isinstance(a, jax.Array) and isinstance(b, jax.Array) and a.ndim == 1
+                and b.ndim == 1 and b.shape[0] >= 1 and a.dtype == jnp.float64
+                and b.dtype == jnp.float64):
+            raise ModelFileError(f"`{where}` (ARX) needs a, b float64 1-D with nb >= 1.")
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            raise ModelFileError(f"`{where}` (ARX) has non-finite coefficients.")
+
+
+def model_from_json(text: str, *, classes=(), source: str = "<string>") -> AbstractModel:
+    """Rebuild a model from model-file text; raises :class:`ModelFileError` on any problem."""
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ModelFileError(f"{source}: not a valid JSON model file ({exc}).") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ModelFileError(f"{source}: not an hbjax model file (no \"format\": \"{FORMAT}\").")
+    version = doc.get("format_version")
+    if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= FORMAT_VERSION:
+        raise ModelFileError(
+            f"{source}: model-file format_version {version!r} is not supported by this hbjax "
+            f"(reads 1 to {FORMAT_VERSION}); written by hbjax {doc.get('hbjax_version')!r}."
+        )
+    if not isinstance(doc.get("model"), dict):
+        raise ModelFileError(f"{source}: the `model` entry is missing.")
+    try:
+        model = _decode_module(doc["model"], tuple(classes), "model")
+    except ModelFileError as exc:
+        raise ModelFileError(f"{source}: {exc}") from None
+    if not isinstance(model, AbstractModel):
+        raise ModelFileError(f"{source}: the top-level object is not an hbjax model.")
+    if doc.get("kind") != type(model).__name__:
+        raise ModelFileError(
+            f"{source}: `kind` {doc.get('kind')!r} disagrees with the model class "
+            f"{type(model).__name__!r}."
+        )
+    return model
+
+
+def load_model(path, *, classes=()) -> AbstractModel:
+    """Load a model written by :func:`save_model`.
+
+    **Arguments:**
+
+    - `path`: the model file.
+    - `classes`: extra ``eqx.Module`` classes the file may name (user-defined nested modules
+      that are not :class:`hbjax.AbstractModel` subclasses). hbjax's own classes and every
+      AbstractModel subclass already defined in this process are always accepted.
+
+    **Returns:** the model, bitwise equal to the one saved.
+
+    **Raises:** ``FileNotFoundError``; ``ValueError`` (:class:`ModelFileError`) naming the
+    file and the offending entry if the file is corrupted, foreign, from a newer format, or
+    names an unknown class. Nothing is returned unless the whole model was rebuilt and checked.
+    """
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"model file {str(p)!r} does not exist.")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ModelFileError(f"{p}: not a text file; expected an hbjax JSON model file.") from None
+    return model_from_json(text, classes=classes, source=str(p))
