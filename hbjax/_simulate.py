@@ -5,7 +5,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._backlash import Backlash
-from ._checks import as_float_array, check_finite, same_length, signal
+from ._checks import as_float_array, check_finite, guard_finite, same_length, signal
 from ._model import AbstractModel, play_trajectory
 
 
@@ -50,8 +50,8 @@ def play(backlash: Backlash, v, *, u0=0.0) -> Float[Array, " time"]:
     **Returns:** ``u``, shape ``(T,)``.
     """
     _check_model(backlash, Backlash, "backlash")
-    v = signal(v, "v")
-    return _play(backlash, v, _scalar(u0, "u0"))
+    v = signal(v, "v", finite=False)
+    return _play(backlash, v, guard_finite(_scalar(u0, "u0"), v=v))
 
 
 def simulate(model: AbstractModel, v, noise=None, *, u0=0.0) -> Float[Array, " time"]:
@@ -74,13 +74,14 @@ def simulate(model: AbstractModel, v, noise=None, *, u0=0.0) -> Float[Array, " t
     **Returns:** ``y``, shape ``(T,)``.
     """
     _check_model(model)
-    v = signal(v, "v")
+    v = signal(v, "v", finite=False)
     if noise is None:
         noise = jnp.zeros_like(v)
     else:
-        noise = signal(noise, "noise")
+        noise = signal(noise, "noise", finite=False)
         same_length(v=v, noise=noise)
-    return _simulate(model, v, noise, _scalar(u0, "u0"))
+    u0 = guard_finite(_scalar(u0, "u0"), v=v, noise=noise)
+    return _simulate(model, v, noise, u0)
 
 
 def predict(model: AbstractModel, v, y, *, u0=0.0) -> Float[Array, " time"]:
@@ -93,7 +94,7 @@ def predict(model: AbstractModel, v, y, *, u0=0.0) -> Float[Array, " time"]:
     **Returns:** ``y_hat``, shape ``(T,)``.
     """
     _check_model(model)
-    v = signal(v, "v")
-    y = signal(y, "y")
+    v = signal(v, "v", finite=False)
+    y = signal(y, "y", finite=False)
     same_length(v=v, y=y)
-    return _predict(model, v, y, _scalar(u0, "u0"))
+    return _predict(model, v, y, guard_finite(_scalar(u0, "u0"), v=v, y=y))
