@@ -1,7 +1,18 @@
-"""Command-line interface: ``hbjax <command>`` and ``python -m hbjax <command>``."""
+"""Command-line interface: ``hbjax <command>`` and ``python -m hbjax <command>``.
+
+Every command has ``--help`` with an example. Errors print one line on stderr and exit with
+status 1 (``--debug`` shows the traceback instead); usage errors exit with status 2. Output
+files are never overwritten unless ``--force`` is given, and are written atomically.
+"""
 
 import argparse
 import sys
+
+_EPILOG_RECORDINGS = (
+    "recording files: CSV with a header row; by default the first column is the input v and "
+    "the second the output y; --input NAME / --output NAME select columns by header name "
+    "(or 0-based index)."
+)
 
 
 def _cmd_demo(args) -> int:
@@ -11,25 +22,239 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- helpers
+
+
+def _column_key(key):
+    """A ``--input``/``--output`` value: an int if it is one, else a header name."""
+    if key is None:
+        return None
+    text = str(key).strip()
+    return int(text) if text.lstrip("-").isdigit() else text
+
+
+def _read_recording(path, args):
+    from ._io import load_recording
+
+    return load_recording(path, input=_column_key(args.input), output=_column_key(args.output))
+
+
+def _read_column(path, key, role):
+    """One numeric column of a CSV file; default: the only column, or ``role``'s default."""
+    from ._io import read_csv_table
+
+    table = read_csv_table(path)
+    if key is None:
+        key = 0 if role == "input" or table.n_columns == 1 else 1
+    return table.column(table.index(_column_key(key), role))
+
+
+def _parse_design(text: str):
+    from ._signals import GiriDesign
+
+    parts = {}
+    for item in text.split(","):
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--design must look like n=2,m=3,h_m=4, got {text!r}.")
+        parts[name.strip()] = value.strip()
+    if set(parts) != {"n", "m", "h_m"}:
+        raise ValueError(f"--design needs exactly n, m and h_m (e.g. n=2,m=3,h_m=4), got {text!r}.")
+    try:
+        return GiriDesign(int(parts["n"]), int(parts["m"]), float(parts["h_m"]))
+    except ValueError as exc:
+        raise ValueError(f"--design {text!r}: {exc}") from None
+
+
+def _describe_model(model) -> str:
+    import numpy as np
+
+    from ._model import Hammerstein
+
+    if not isinstance(model, Hammerstein):
+        return repr(model)
+    fmt = lambda x: np.array2string(np.asarray(x), precision=6, separator=", ")  # noqa: E731
+    return (
+        f"  a  = {fmt(model.arx.a)}\n  b  = {fmt(model.arx.b)}\n"
+        f"  c1 = {fmt(model.backlash.c1)}  (P1, ascending powers)\n"
+        f"  c2 = {fmt(model.backlash.c2)}  (P2, ascending powers)"
+    )
+
+
+# ----------------------------------------------------------------------------- commands
+
+
+def _cmd_signals(args) -> int:
+    from ._io import atomic_write, format_float
+
+    design = _parse_design(args.design)
+    signals = (
+        design.constant_input(args.samples),
+        design.binary_input(args.samples),
+        design.staircase_input(args.samples),
+    )
+    written = []
+    for k, v in enumerate(signals, start=1):
+        text = "v\n" + "".join(format_float(x) + "\n" for x in v)
+        written.append(atomic_write(f"{args.prefix}{k}.csv", text, overwrite=args.force))
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def _cmd_simulate(args) -> int:
+    import jax
+    import jax.numpy as jnp
+
+    from ._io import Recording, save_recording
+    from ._modelfile import load_model
+    from ._simulate import simulate
+
+    model = load_model(args.model)
+    v = _read_column(args.input, args.column, "input")
+    if args.noise_std < 0:
+        raise ValueError(f"--noise-std must be >= 0, got {args.noise_std}.")
+    noise = None
+    if args.noise_std > 0:
+        noise = args.noise_std * jax.random.normal(jax.random.PRNGKey(args.seed), v.shape, jnp.float64)
+    y = simulate(model, v, noise, u0=args.u0)
+    save_recording(args.out, Recording(v, jax.device_get(y)), overwrite=args.force)
+    print(f"wrote {args.out}: {v.shape[0]} samples (columns v, y)")
+    return 0
+
+
+def _cmd_identify_giri(args) -> int:
+    from ._giri import identify_giri
+    from ._modelfile import save_model
+
+    design = _parse_design(args.design)
+    ys = [_read_column(path, args.output, "output") for path in args.records]
+    result = identify_giri(design, *ys, transient=args.transient)
+    save_model(args.out, result.model, overwrite=args.force)
+    print(f"identified the normalised model (paper section 4.1), design {args.design}:")
+    print(_describe_model(result.model))
+    print(
+        f"  offset = {float(result.offset):.6g} (transient {int(result.transient)} samples "
+        f"discarded), noise std = {float(result.noise_std):.4g}, "
+        f"cond(LS) = {float(result.cond_ls):.3g}"
+    )
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_show(args) -> int:
+    from ._modelfile import load_model
+
+    model = load_model(args.model)
+    print(f"{args.model}: {type(model).__name__}")
+    print(_describe_model(model))
+    return 0
+
+
+# ----------------------------------------------------------------------------- parser
+
+
+def _add_command(sub, name, *, help, description, example, parents=()):
+    return sub.add_parser(
+        name,
+        help=help,
+        description=description,
+        epilog=f"example: {example}",
+        parents=list(parents),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
+    # --debug is accepted before or after the command name.
+    debug = argparse.ArgumentParser(add_help=False)
+    debug.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                       help="show the traceback on error")
     parser = argparse.ArgumentParser(
         prog="hbjax",
         description="Identify Hammerstein systems with hysteresis-backlash input nonlinearity.",
+        epilog="example: hbjax demo --out demo_output   (hbjax COMMAND --help for each command)",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on error")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    demo = sub.add_parser(
-        "demo",
+    demo = _add_command(
+        sub, "demo", parents=[debug],
         help="simulate the default system, run the paper's three experiments, identify it",
         description="The main job on the embedded default system.",
-        epilog="example: hbjax demo --out demo_output",
+        example="hbjax demo --out demo_output",
     )
     demo.add_argument("--out", default="demo_output", help="folder for the figures and table")
     demo.add_argument("--force", action="store_true", help="overwrite files in --out")
     demo.add_argument("--samples", type=int, default=10_000, help="samples per experiment")
     demo.add_argument("--seed", type=int, default=0, help="PRNG seed of the noise")
     demo.set_defaults(func=_cmd_demo)
+
+    signals = _add_command(
+        sub, "signals", parents=[debug],
+        help="write the paper's three excitation inputs v1, v2, v3 as CSV files",
+        description="Write v1 (eq. 14), v2 (eq. 27) and v3 (eq. 32) for a design to "
+        "PREFIX1.csv, PREFIX2.csv, PREFIX3.csv (one column `v`).",
+        example="hbjax signals --design n=2,m=3,h_m=4 --samples 2000 --prefix v",
+    )
+    signals.add_argument("--design", required=True, help="n=ORDER,m=COEFFS,h_m=AMPLITUDE")
+    signals.add_argument("--samples", type=int, required=True, help="samples per signal")
+    signals.add_argument("--prefix", default="v", help="file name prefix (default: v)")
+    signals.add_argument("--force", action="store_true", help="overwrite existing files")
+    signals.set_defaults(func=_cmd_signals)
+
+    simulate = _add_command(
+        sub, "simulate", parents=[debug],
+        help="simulate a saved model on an input recording",
+        description="Free-run simulation (paper eq. (10)) of a model file on the input column "
+        "of a CSV file; writes a CSV with columns v, y.\n"
+        "--noise-std adds white Gaussian equation error xi(t) (eq. (10)) drawn with --seed.",
+        example="hbjax simulate --model model.json --input v.csv --out y.csv --noise-std 0.5 --seed 1",
+    )
+    simulate.add_argument("--model", required=True, help="model file (hbjax save_model JSON)")
+    simulate.add_argument("--input", required=True, help="CSV file with the input signal")
+    simulate.add_argument("--column", default=None,
+                          help="input column (header name or index; default: the first)")
+    simulate.add_argument("--out", required=True, help="CSV file to write (columns v, y)")
+    simulate.add_argument("--noise-std", type=float, default=0.0, help="std of xi(t) (default 0)")
+    simulate.add_argument("--seed", type=int, default=0, help="PRNG seed of the noise")
+    simulate.add_argument("--u0", type=float, default=0.0, help="initial backlash output u(-1)")
+    simulate.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    simulate.set_defaults(func=_cmd_simulate)
+
+    identify = _add_command(
+        sub, "identify", parents=[debug],
+        help="identify a model from recordings",
+        description="Identification methods: `giri` (the paper's closed form on its three "
+        "experiments).",
+        example="hbjax identify giri --design n=2,m=3,h_m=4 y1.csv y2.csv y3.csv --out model.json",
+    )
+    methods = identify.add_subparsers(dest="method", required=True, metavar="METHOD")
+    giri = _add_command(
+        methods, "giri", parents=[debug],
+        help="the paper's closed-form identification from its three experiments",
+        description="Identify the normalised HB-Hammerstein model (paper section 4) from the "
+        "outputs y1, y2, y3 of the experiments v1 (eq. 14), v2 (eq. 27), v3 (eq. 32).\n"
+        "Each record is a CSV file; its output column is --output, by default the second "
+        "column (or the only one).",
+        example="hbjax identify giri --design n=2,m=3,h_m=4 y1.csv y2.csv y3.csv --out model.json",
+    )
+    giri.add_argument("--design", required=True, help="n=ORDER,m=COEFFS,h_m=AMPLITUDE")
+    giri.add_argument("records", nargs=3, metavar="Yk.csv", help="outputs of v1, v2, v3")
+    giri.add_argument("--output", default=None, help="output column (header name or index)")
+    giri.add_argument("--transient", type=int, default=None,
+                      help="samples of y1 to discard (default: settling time of A)")
+    giri.add_argument("--out", required=True, help="model file to write (JSON)")
+    giri.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    giri.set_defaults(func=_cmd_identify_giri)
+
+    show = _add_command(
+        sub, "show", parents=[debug],
+        help="print the parameters of a model file",
+        description="Load a model file and print its kind and parameters.",
+        example="hbjax show model.json",
+    )
+    show.add_argument("model", help="model file")
+    show.set_defaults(func=_cmd_show)
     return parser
 
 
@@ -38,10 +263,14 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        print(f"hbjax {args.command}: interrupted", file=sys.stderr)
+        return 130
     except Exception as exc:  # one clear line unless --debug
-        if args.debug:
+        if getattr(args, "debug", False):
             raise
-        print(f"hbjax {args.command}: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"hbjax {args.command}: error: {message}", file=sys.stderr)
         return 1
 
 

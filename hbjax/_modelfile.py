@@ -120,7 +120,20 @@ def model_to_json(model: AbstractModel) -> str:
         "kind": type(model).__name__,
         "model": _encode_module(model, "model"),
     }
-    return json.dumps(doc, indent=1, allow_nan=False) + "\n"
+    return _pretty(doc) + "\n"
+
+
+def _pretty(obj, depth: int = 0) -> str:
+    """JSON with one key per line but every array entry and scalar list on a single line."""
+    flat = json.dumps(obj, allow_nan=False)
+    if not isinstance(obj, (dict, list)) or "array" in obj or len(flat) <= 60:
+        return flat
+    pad, inner = "  " * depth, "  " * (depth + 1)
+    if isinstance(obj, list):
+        items = [inner + _pretty(x, depth + 1) for x in obj]
+        return "[\n" + ",\n".join(items) + "\n" + pad + "]"
+    items = [f"{inner}{json.dumps(k)}: {_pretty(v, depth + 1)}" for k, v in obj.items()]
+    return "{\n" + ",\n".join(items) + "\n" + pad + "}"
 
 
 def save_model(path, model: AbstractModel, *, overwrite: bool = False) -> pathlib.Path:
