@@ -1,0 +1,123 @@
+"""The command-line tool end to end, through subprocesses on small files."""
+
+import argparse
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import hbjax
+from hbjax._cli import build_parser, main
+
+ENV = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONWARNINGS": "ignore"}
+
+
+def run(*args, cwd, check=True):
+    proc = subprocess.run(
+        [sys.executable, "-m", "hbjax", *map(str, args)],
+        cwd=cwd, env=ENV, capture_output=True, text=True, timeout=300,
+    )
+    if check and proc.returncode != 0:
+        raise AssertionError(f"hbjax {args} failed ({proc.returncode}):\n{proc.stderr}")
+    return proc
+
+
+def test_paper_workflow_signals_simulate_identify(tmp_path, system, design):
+    hbjax.save_model(tmp_path / "true.json", system)
+    run("signals", "--design", "n=2,m=3,h_m=4", "--samples", 3000, "--prefix", "v", cwd=tmp_path)
+    for k in (1, 2, 3):
+        run("simulate", "--model", "true.json", "--input", f"v{k}.csv", "--out", f"y{k}.csv",
+            "--noise-std", 0.05, "--seed", k, cwd=tmp_path)
+    # The CLI's input signals are the design's signals, and its outputs the library's simulation.
+    rec = hbjax.load_recording(tmp_path / "y3.csv")
+    np.testing.assert_array_equal(rec.v, design.staircase_input(3000))
+    proc = run("identify", "giri", "--design", "n=2,m=3,h_m=4", "y1.csv", "y2.csv", "y3.csv",
+               "--out", "model.json", cwd=tmp_path)
+    assert "wrote model.json" in proc.stdout
+    model = hbjax.load_model(tmp_path / "model.json")
+    truth = hbjax.normalise(system, design.h_m)
+    np.testing.assert_allclose(hbjax.flatten_params(model), hbjax.flatten_params(truth), atol=0.05)
+    shown = run("show", "model.json", cwd=tmp_path).stdout
+    assert "Hammerstein" in shown and "c1" in shown
+
+
+def test_simulate_without_noise_matches_library_exactly(tmp_path, system):
+    hbjax.save_model(tmp_path / "m.json", system)
+    v = np.sin(np.linspace(0, 20, 200)) * 5
+    (tmp_path / "in.csv").write_text("time,drive\n" + "".join(f"{i},{float(x)!r}\n" for i, x in enumerate(v)))
+    run("simulate", "--model", "m.json", "--input", "in.csv", "--column", "drive", "--out", "y.csv",
+        cwd=tmp_path)
+    rec = hbjax.load_recording(tmp_path / "y.csv", input="v", output="y")
+    np.testing.assert_array_equal(rec.v, v)
+    np.testing.assert_array_equal(rec.y, np.asarray(hbjax.simulate(system, v)))
+
+
+def test_errors_are_one_line_and_nonzero(tmp_path, system):
+    hbjax.save_model(tmp_path / "m.json", system)
+    (tmp_path / "bad.csv").write_text("v\n1.0\nabc\n")
+    proc = run("simulate", "--model", "m.json", "--input", "bad.csv", "--out", "y.csv",
+               cwd=tmp_path, check=False)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("hbjax simulate: error:") and "row 3" in lines[0]
+    assert not (tmp_path / "y.csv").exists()
+    proc = run("--debug", "simulate", "--model", "m.json", "--input", "bad.csv", "--out", "y.csv",
+               cwd=tmp_path, check=False)
+    assert proc.returncode != 0 and "Traceback" in proc.stderr
+
+
+def test_no_clobber_without_force(tmp_path, system):
+    hbjax.save_model(tmp_path / "m.json", system)
+    (tmp_path / "v.csv").write_text("v\n1\n2\n3\n")
+    (tmp_path / "y.csv").write_text("keep me\n")
+    proc = run("simulate", "--model", "m.json", "--input", "v.csv", "--out", "y.csv",
+               cwd=tmp_path, check=False)
+    assert proc.returncode == 1 and "--force" in proc.stderr
+    assert (tmp_path / "y.csv").read_text() == "keep me\n"
+    run("simulate", "--model", "m.json", "--input", "v.csv", "--out", "y.csv", "--force",
+        cwd=tmp_path)
+    assert len(hbjax.load_recording(tmp_path / "y.csv")) == 3
+
+
+def _subcommands(parser, prefix=()):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield prefix + (name,), sub
+                yield from _subcommands(sub, prefix + (name,))
+
+
+def test_every_command_has_help_with_an_example(capsys):
+    commands = list(_subcommands(build_parser()))
+    assert {c[0] for c, _ in commands} >= {"demo", "simulate", "identify", "signals"}
+    for command, _ in commands:
+        with pytest.raises(SystemExit) as info:
+            main([*command, "--help"])
+        assert info.value.code == 0
+        assert "example: hbjax " + command[0] in capsys.readouterr().out, command
+
+
+def test_usage_error_exits_2(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["identify", "giri", "--design", "n=2,m=3,h_m=4", "only_one.csv", "--out", "m.json"])
+    assert info.value.code == 2
+
+
+def test_bad_design_is_a_clear_error(tmp_path, capsys):
+    for text in ("n=2,m=3", "n=2;m=3;h_m=4", "n=2,m=3,h_m=-1"):
+        assert main(["signals", "--design", text, "--samples", "10", "--prefix",
+                     str(tmp_path / "v")]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith("hbjax signals: error: --design") and err.count("\n") == 1
+
+
+def test_console_script_is_installed():
+    script = pathlib.Path(sys.executable).parent / "hbjax"
+    if not script.exists():
+        pytest.skip("package not installed with its console script")
+    proc = subprocess.run([str(script), "--help"], capture_output=True, text=True, env=ENV, timeout=120)
+    assert proc.returncode == 0 and "simulate" in proc.stdout
