@@ -2,32 +2,39 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.installed-stamp
+BASE_STAMP := $(VENV)/.installed-base
+TEST_STAMP := $(VENV)/.installed-test
 
 .PHONY: demo test test-fast bench install clean
 
-$(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(BASE_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(TEST_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test]"
-	touch $(STAMP)
+	touch $(BASE_STAMP) $@
 
-install: $(STAMP)
+install: $(BASE_STAMP)
 
-demo: $(STAMP)
+demo: $(BASE_STAMP)
 	$(BIN)/python -m hbjax demo --out demo_output --force
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q -p no:cacheprovider tests
 
-test-fast: $(STAMP)
+test-fast: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not slow" tests
 
-bench: $(STAMP)
-	$(BIN)/python benchmarks/simulate.py
-	$(BIN)/python benchmarks/refine.py
-	$(BIN)/python benchmarks/monte_carlo.py
-	$(BIN)/python benchmarks/diagnose.py
+bench: $(TEST_STAMP)
+	cd benchmarks && ../$(BIN)/python simulate.py
+	cd benchmarks && ../$(BIN)/python refine.py
+	cd benchmarks && ../$(BIN)/python monte_carlo.py
+	cd benchmarks && ../$(BIN)/python diagnose.py
 
 clean:
 	rm -rf $(VENV) demo_output
