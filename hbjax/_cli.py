@@ -153,14 +153,29 @@ def _cmd_show(args) -> int:
 # ----------------------------------------------------------------------------- parser
 
 
+class _Formatter(argparse.HelpFormatter):
+    """Wraps each paragraph of a description on its own; indented lines (examples) stay."""
+
+    def _fill_text(self, text, width, indent):
+        out = []
+        for para in text.split("\n\n"):
+            if para.startswith("  "):
+                out.append("\n".join(indent + line for line in para.splitlines()))
+            else:
+                out.append(super()._fill_text(para, width, indent))
+        return "\n\n".join(out)
+
+
 def _add_command(sub, name, *, help, description, example, parents=()):
+    examples = example if isinstance(example, (list, tuple)) else [example]
+    label = "example" if len(examples) == 1 else "examples"
     return sub.add_parser(
         name,
         help=help,
         description=description,
-        epilog=f"example: {example}",
+        epilog=f"{label}:\n\n" + "\n".join(f"  {e}" for e in examples),
         parents=list(parents),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=_Formatter,
     )
 
 
@@ -172,7 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hbjax",
         description="Identify Hammerstein systems with hysteresis-backlash input nonlinearity.",
-        epilog="example: hbjax demo --out demo_output   (hbjax COMMAND --help for each command)",
+        epilog="example:\n\n  hbjax demo --out demo_output\n\n"
+        "Run `hbjax COMMAND --help` for the options and an example of each command.",
+        formatter_class=_Formatter,
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on error")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -206,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
         sub, "simulate", parents=[debug],
         help="simulate a saved model on an input recording",
         description="Free-run simulation (paper eq. (10)) of a model file on the input column "
-        "of a CSV file; writes a CSV with columns v, y.\n"
+        "of a CSV file; writes a CSV with columns v, y.\n\n"
         "--noise-std adds white Gaussian equation error xi(t) (eq. (10)) drawn with --seed.",
         example="hbjax simulate --model model.json --input v.csv --out y.csv --noise-std 0.5 --seed 1",
     )
@@ -233,13 +250,14 @@ def build_parser() -> argparse.ArgumentParser:
         methods, "giri", parents=[debug],
         help="the paper's closed-form identification from its three experiments",
         description="Identify the normalised HB-Hammerstein model (paper section 4) from the "
-        "outputs y1, y2, y3 of the experiments v1 (eq. 14), v2 (eq. 27), v3 (eq. 32).\n"
+        "outputs y1, y2, y3 of the experiments v1 (eq. 14), v2 (eq. 27), v3 (eq. 32).\n\n"
         "Each record is a CSV file; its output column is --output, by default the second "
         "column (or the only one).",
         example="hbjax identify giri --design n=2,m=3,h_m=4 y1.csv y2.csv y3.csv --out model.json",
     )
     giri.add_argument("--design", required=True, help="n=ORDER,m=COEFFS,h_m=AMPLITUDE")
-    giri.add_argument("records", nargs=3, metavar="Yk.csv", help="outputs of v1, v2, v3")
+    giri.add_argument("records", nargs=3, metavar="Yk.csv",
+                      help="three CSV files: outputs of v1, v2, v3 (in this order)")
     giri.add_argument("--output", default=None, help="output column (header name or index)")
     giri.add_argument("--transient", type=int, default=None,
                       help="samples of y1 to discard (default: settling time of A)")
