@@ -19,7 +19,12 @@ def as_float_array(x, name: str, ndim: int | None = None) -> jax.Array:
     if isinstance(x, (str, bytes)) or x is None:
         raise TypeError(f"`{name}` must be a numeric array, got {type(x).__name__}.")
     if not is_traced(x):
-        arr = np.asarray(x)
+        try:
+            arr = np.asarray(x)
+        except ValueError:  # ragged nested sequences
+            raise ValueError(
+                f"`{name}` must be a numeric array of regular shape, got a ragged sequence."
+            ) from None
         if arr.dtype == object or not (
             np.issubdtype(arr.dtype, np.number) or arr.dtype == bool
         ):

@@ -84,7 +84,9 @@ def normalise(model: Hammerstein, h_m) -> Hammerstein:
     h_m = as_float_array(h_m, "h_m")
     if h_m.ndim != 0:
         raise ValueError(f"`h_m` must be a scalar, got shape {tuple(h_m.shape)}.")
-    if not is_traced(h_m) and not float(h_m) > 0:
+    if is_traced(h_m):
+        h_m = eqx.error_if(h_m, ~(h_m > 0), "`h_m` must be > 0.")
+    elif not float(h_m) > 0:
         raise ValueError(f"`h_m` must be > 0, got {float(h_m)}.")
     bl = model.backlash
     mu = bl.p2(-h_m) - bl.p1(h_m)

@@ -5,26 +5,34 @@ from jaxtyping import Array, Float
 
 from ._arx import ARX
 from ._backlash import Backlash
+from ._checks import as_float_array, check_finite, is_traced
 from ._model import Hammerstein
+
+
+def _check_model(model, name):
+    if not isinstance(model, Hammerstein):
+        raise TypeError(f"`{name}` must be an hbjax.Hammerstein, got {type(model).__name__}.")
 
 
 def flatten_params(model: Hammerstein) -> Float[Array, " p"]:
     """``[a_1..a_na, b_1..b_nb, c1_0..c1_{m-1}, c2_0..c2_{m-1}]``: the parameter order
     used by :func:`hbjax.crlb`, covariances and Monte Carlo studies."""
-    if not isinstance(model, Hammerstein):
-        raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    _check_model(model, "model")
     return jnp.concatenate([model.arx.a, model.arx.b, model.backlash.c1, model.backlash.c2])
 
 
 def unflatten_params(like: Hammerstein, theta) -> Hammerstein:
     """Inverse of :func:`flatten_params`, with the orders of ``like``."""
+    _check_model(like, "like")
     na, nb, m = like.arx.na, like.arx.nb, like.backlash.m
-    theta = jnp.asarray(theta, dtype=jnp.float64)
+    theta = as_float_array(theta, "theta")
     if theta.shape != (na + nb + 2 * m,):
         raise ValueError(
             f"`theta` must have shape ({na + nb + 2 * m},) for na={na}, nb={nb}, m={m}, "
             f"got {tuple(theta.shape)}."
         )
+    if not is_traced(theta):  # traced: left to the caller (optimisers probe freely)
+        check_finite(theta, "theta")
     a, b = theta[:na], theta[na:na + nb]
     c1, c2 = theta[na + nb:na + nb + m], theta[na + nb + m:]
     return Hammerstein(Backlash(c1, c2), ARX(a, b))
@@ -32,6 +40,7 @@ def unflatten_params(like: Hammerstein, theta) -> Hammerstein:
 
 def param_names(model: Hammerstein) -> list[str]:
     """Names in :func:`flatten_params` order: ``a1.., b1.., c1_0.., c2_0..``."""
+    _check_model(model, "model")
     na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
     return ([f"a{i + 1}" for i in range(na)] + [f"b{i + 1}" for i in range(nb)]
             + [f"c1_{i}" for i in range(m)] + [f"c2_{i}" for i in range(m)])

@@ -7,6 +7,9 @@ from ._checks import positive_int
 
 
 def _positive_float(x, name):
+    # Strings and booleans convert with float() but are not amplitudes.
+    if isinstance(x, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"`{name}` must be a real number, got {x!r}.")
     try:
         val = float(x)
     except (TypeError, ValueError):
@@ -50,8 +53,17 @@ class GiriDesign(eqx.Module):
         step = self.h_m / self.m
         return np.where(j < self.m, self.h_m + j * step, -self.h_m - (j - self.m) * step)
 
-    def check_model(self, model, name: str = "model") -> None:
-        """Raise if ``model``'s orders do not match the design (``na = nb = n``, ``m``)."""
+    def check_model(self, model, name: str = "model", *, assumptions: bool = False) -> None:
+        """Raise if ``model``'s orders do not match the design (``na = nb = n``, ``m``).
+
+        With ``assumptions=True`` a true system is also checked against what the method
+        needs (``ValueError`` naming the assumption): A3 (``A`` stable), A5
+        (``B(1) != 0``), branches that do not cross on the excited range
+        ``[-2 h_m, 2 h_m]`` (where they cross, the rising and falling branches swap and
+        ``HB(P1, P2)`` is no longer the paper's backlash), and A4 in the form the
+        estimator uses: ``v = +h_m`` puts the output on ``P1`` and ``v = -h_m`` on ``P2``
+        (``mu = P2(-h_m) - P1(h_m)`` has the sign that crosses the gap, section 4.1).
+        """
         from ._model import Hammerstein
 
         if not isinstance(model, Hammerstein):
@@ -61,6 +73,39 @@ class GiriDesign(eqx.Module):
             raise ValueError(
                 f"`{name}` has orders na={na}, nb={nb}, m={m} but the design expects "
                 f"na = nb = n = {self.n} and m = {self.m}."
+            )
+        if assumptions:
+            self._check_assumptions(model, name)
+
+    def _check_assumptions(self, model, name: str) -> None:
+        a, b = np.asarray(model.arx.a), np.asarray(model.arx.b)
+        radius = np.max(np.abs(np.roots(np.concatenate([[1.0], a])))) if a.size else 0.0
+        if not radius < 1:
+            raise ValueError(
+                f"`{name}` has an unstable A (largest pole modulus {radius:.4g}); "
+                "assumption A3 asks all poles strictly inside the unit circle."
+            )
+        if abs(b.sum()) <= 1e-12 * np.abs(b).sum():
+            raise ValueError(f"`{name}` has B(1) = 0; assumption A5 asks a nonzero static gain.")
+        c1, c2 = np.asarray(model.backlash.c1), np.asarray(model.backlash.c2)
+        grid = np.linspace(-2 * self.h_m, 2 * self.h_m, 4097)
+        gap = np.polynomial.polynomial.polyval(grid, c2 - c1)
+        if gap.min() < 0 < gap.max():
+            where = grid[np.flatnonzero(np.diff(np.sign(gap)))[0]]
+            raise ValueError(
+                f"the branches P1, P2 of `{name}` cross near v = {where:.4g}, inside the "
+                f"excited range [-2 h_m, 2 h_m] = [{-2 * self.h_m:g}, {2 * self.h_m:g}]: "
+                "P1 - P2 changes sign, so the rising and falling branches swap sides and "
+                "HB(P1, P2) is not a backlash band there."
+            )
+        side = np.sign(gap[np.argmax(np.abs(gap))])  # +1: P1 below P2 (increasing backlash)
+        poly = np.polynomial.polynomial.polyval
+        mu = poly(-self.h_m, c2) - poly(self.h_m, c1)
+        if not mu * side < 0:
+            raise ValueError(
+                f"`{name}` with h_m = {self.h_m:g}: v = +h_m does not put the output on P1 "
+                f"and v = -h_m on P2 (mu = P2(-h_m) - P1(h_m) = {mu:.4g}); the +-h_m swing "
+                "must cross the backlash gap (assumption A4): increase `h_m`."
             )
 
     def constant_input(self, T) -> np.ndarray:

@@ -1,12 +1,15 @@
 """Public simulation entry points: the play operator, free-run simulation, prediction."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
+from ._arx import ARX
 from ._backlash import Backlash
-from ._checks import as_float_array, check_finite, guard_finite, same_length, signal
-from ._model import AbstractModel, play_trajectory
+from ._checks import as_float_array, check_finite, guard_finite, is_traced, same_length, signal
+from ._model import AbstractModel, Hammerstein, play_trajectory
 
 
 def _check_model(model, cls=AbstractModel, name="model"):
@@ -14,6 +17,37 @@ def _check_model(model, cls=AbstractModel, name="model"):
         raise TypeError(
             f"`{name}` must be an hbjax.{cls.__name__}, got {type(model).__name__}."
         )
+
+
+def _guard_params(carrier, model):
+    """``eqx.error_if`` on traced Backlash/ARX coefficients (concrete ones are checked by
+    the constructors). Other leaves of model extensions may be infinite on purpose (e.g.
+    an inactive clip level), so only the paper's coefficients are guarded."""
+    blocks = jax.tree_util.tree_leaves(model, is_leaf=lambda x: isinstance(x, (Backlash, ARX)))
+    for block in blocks:
+        if isinstance(block, (Backlash, ARX)):
+            for leaf in jax.tree_util.tree_leaves(block):
+                if is_traced(leaf):
+                    carrier = eqx.error_if(
+                        carrier, ~jnp.all(jnp.isfinite(leaf)),
+                        "`model` has NaN or inf coefficients.",
+                    )
+    return carrier
+
+
+def _check_output(y, model):
+    """Refuse a diverged free run eagerly instead of returning inf/NaN samples."""
+    if is_traced(y) or bool(jnp.all(jnp.isfinite(y))):
+        return y
+    first = int(np.flatnonzero(~np.isfinite(np.asarray(y)))[0])
+    why = "the model diverges"
+    if isinstance(model, Hammerstein) and not model.arx.is_stable():
+        radius = float(np.max(np.abs(np.asarray(model.arx.poles()))))
+        why = (f"the ARX block of `model` is unstable (largest pole modulus {radius:.4g}; "
+               "assumption A3 asks < 1)")
+    raise ValueError(
+        f"the simulated output overflows to inf/NaN from sample {first} on: {why}."
+    )
 
 
 def _scalar(x, name):
@@ -51,7 +85,8 @@ def play(backlash: Backlash, v, *, u0=0.0) -> Float[Array, " time"]:
     """
     _check_model(backlash, Backlash, "backlash")
     v = signal(v, "v", finite=False)
-    return _play(backlash, v, guard_finite(_scalar(u0, "u0"), v=v))
+    u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v), backlash)
+    return _play(backlash, v, u0)
 
 
 def simulate(model: AbstractModel, v, noise=None, *, u0=0.0) -> Float[Array, " time"]:
@@ -80,8 +115,8 @@ def simulate(model: AbstractModel, v, noise=None, *, u0=0.0) -> Float[Array, " t
     else:
         noise = signal(noise, "noise", finite=False)
         same_length(v=v, noise=noise)
-    u0 = guard_finite(_scalar(u0, "u0"), v=v, noise=noise)
-    return _simulate(model, v, noise, u0)
+    u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v, noise=noise), model)
+    return _check_output(_simulate(model, v, noise, u0), model)
 
 
 def predict(model: AbstractModel, v, y, *, u0=0.0) -> Float[Array, " time"]:
@@ -97,4 +132,5 @@ def predict(model: AbstractModel, v, y, *, u0=0.0) -> Float[Array, " time"]:
     v = signal(v, "v", finite=False)
     y = signal(y, "y", finite=False)
     same_length(v=v, y=y)
-    return _predict(model, v, y, guard_finite(_scalar(u0, "u0"), v=v, y=y))
+    u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v, y=y), model)
+    return _predict(model, v, y, u0)
