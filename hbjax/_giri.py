@@ -22,6 +22,7 @@ SINGULAR_LS = 2
 ZERO_STATIC_GAIN = 3
 GAP_NOT_CROSSED = 4
 SINGULAR_VANDERMONDE = 5
+UNSTABLE_A = 6
 RESULT_MESSAGES = {
     SUCCESS: "success",
     NONFINITE: "non-finite values in the records or the estimate",
@@ -32,6 +33,10 @@ RESULT_MESSAGES = {
         "v = -h_m on P2 (P2*(-h_m) - P1*(h_m) should be 1); increase h_m (assumption A4)"
     ),
     SINGULAR_VANDERMONDE: "the Vandermonde systems (45)-(46) are singular",
+    UNSTABLE_A: (
+        "the estimated A is unstable (assumption A3 fails): the records do not come from "
+        "a stable system, so the offset (17) and the averages of stage 3 do not converge"
+    ),
 }
 _COND_LIMIT = 1e12
 # The normalisation makes P2*(-h_m) - P1*(h_m) = 1 (section 4.1); stage 3 measures both
@@ -154,6 +159,20 @@ def _transient_length(a, limit):
     return jnp.minimum(k, limit)
 
 
+def _is_stable(a):
+    """Assumption A3 by the Schur-Cohn step-down recursion (traceable, no eigenvalues):
+    ``1 + a_1 z^-1 + ... + a_n z^-n`` has all zeros inside the unit circle iff every
+    reflection coefficient has modulus < 1."""
+    poly = jnp.concatenate([jnp.ones(1, a.dtype), a])
+    stable = jnp.array(True)
+    for i in range(a.shape[0], 0, -1):
+        k = poly[i]
+        stable = stable & (jnp.abs(k) < 1)
+        denom = jnp.where(jnp.abs(k) < 1, 1 - k**2, 1.0)
+        poly = (poly[:i] - k * poly[i:0:-1]) / denom
+    return stable
+
+
 def _vandermonde(levels, values, h_m):
     """Solve ``V c = values`` (eqs. (45)-(46)) in the scaled variable ``x = level / h_m``."""
     m = levels.shape[0]
@@ -205,11 +224,12 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
         [
             ~finite,
             ~(cond_ls < _COND_LIMIT),
+            ~_is_stable(a),
             zero_gain,
             ~jnp.all(jnp.isfinite(params)) | ~(cond_v[1] < _COND_LIMIT),
             ~(jnp.abs(gap - 1.0) <= _GAP_TOLERANCE),
         ],
-        [NONFINITE, SINGULAR_LS, ZERO_STATIC_GAIN, SINGULAR_VANDERMONDE, GAP_NOT_CROSSED],
+        [NONFINITE, SINGULAR_LS, UNSTABLE_A, ZERO_STATIC_GAIN, SINGULAR_VANDERMONDE, GAP_NOT_CROSSED],
         SUCCESS,
     )
     return GiriResult(
