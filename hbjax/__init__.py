@@ -17,6 +17,7 @@ from ._simulate import play as play, predict as predict, simulate as simulate
 
 # --- refinement (issue 3) ---
 # --- monte carlo (issue 4) ---
+from ._monte_carlo import Study as Study, monte_carlo as monte_carlo
 # --- diagnosis (issue 5) ---
 # --- io, datasets, cli (issue 6) ---
 from . import datasets as datasets

@@ -1,0 +1,342 @@
+"""Monte Carlo consistency studies: simulate the paper's three experiments (eqs. (14),
+(27), (32)) under many independent noise draws and re-estimate every time.
+
+Simulation and estimation of one realisation are written for one trajectory and
+``jax.vmap``-ed over a chunk of realisations (compiled once per record length), the chunk
+is sharded over a 1-D device mesh, and chunks run one after another so memory stays
+bounded whatever the number of realisations.
+"""
+
+import inspect
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from ._checks import is_traced, positive_int
+from ._config import require_x64
+from ._giri import NONFINITE, estimate_giri, normalise
+from ._model import Hammerstein
+from ._params import flatten_params, param_names
+from ._signals import GiriDesign
+from ._study import Study
+
+
+# Realisation-samples per device per chunk (realisations x record length). Measured peak
+# host memory is about 200 bytes per realisation-sample for the closed form (records,
+# noise, regressors), so 2**22 keeps a chunk near 0.8 GB; see docs/monte_carlo.md.
+_CHUNK_SAMPLES = 2**22
+_AXIS = "realisations"
+
+
+def _check_key(key):
+    if isinstance(key, jax.Array) and not is_traced(key):
+        if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ():
+            return key
+        if key.dtype == jnp.uint32 and key.shape == (2,):  # legacy jax.random.PRNGKey
+            return jax.random.wrap_key_data(key)
+    what = f"{type(key).__name__}" + (
+        f" of dtype {key.dtype} and shape {tuple(key.shape)}" if hasattr(key, "dtype") else ""
+    )
+    raise TypeError(
+        f"`key` must be a single JAX PRNG key, e.g. jax.random.key(0), got {what}."
+    )
+
+
+def _check_lengths(lengths, design):
+    if isinstance(lengths, (int, np.integer)) and not isinstance(lengths, bool):
+        lengths = [lengths]
+    if isinstance(lengths, (str, bytes)) or not isinstance(lengths, (Sequence, np.ndarray)):
+        raise TypeError(f"`lengths` must be a sequence of integers, got {type(lengths).__name__}.")
+    out = [positive_int(n, "lengths") for n in np.asarray(lengths, dtype=object).ravel()]
+    if not out:
+        raise ValueError("`lengths` must hold at least one record length.")
+    minimum = max(design.staircase_period, design.binary_period)
+    short = [n for n in out if n < minimum]
+    if short:
+        raise ValueError(
+            f"`lengths` {short} are shorter than one period of v3 (2m(n+1) = "
+            f"{design.staircase_period} samples for this design; v2's period is "
+            f"{design.binary_period}): every record must cover at least {minimum} samples."
+        )
+    if len(set(out)) != len(out):
+        raise ValueError(f"`lengths` must be distinct, got {out}.")
+    return out
+
+
+def _check_noise_std(noise_std):
+    try:
+        val = float(noise_std)
+    except (TypeError, ValueError):
+        raise TypeError(f"`noise_std` must be a real number, got {noise_std!r}.") from None
+    if not np.isfinite(val) or val < 0:
+        raise ValueError(f"`noise_std` must be a finite number >= 0, got {noise_std!r}.")
+    return val
+
+
+def _noise_draw(noise, length):
+    """``key -> unit-scale record (T,)`` for the white cases or the user's callable."""
+    if noise in ("equation", "output"):
+        return lambda k: jax.random.normal(k, (length,), jnp.float32).astype(jnp.float64)
+    if not callable(noise):
+        raise ValueError(
+            f"`noise` must be 'equation', 'output' or a callable (key, length) -> record, "
+            f"got {noise!r}."
+        )
+    try:
+        n_args = len(inspect.signature(noise).parameters)
+    except (TypeError, ValueError):
+        n_args = 2
+    draw = (lambda k: noise(k, length)) if n_args >= 2 else noise
+    try:
+        out = jax.eval_shape(draw, jax.random.key(0))
+    except Exception as err:  # the user's code: say where it failed
+        raise ValueError(f"calling the `noise` callable with (key, {length}) failed: {err}") from err
+    if not hasattr(out, "shape") or out.shape != (length,) or not jnp.issubdtype(out.dtype, jnp.floating):
+        got = f"shape {tuple(out.shape)} and dtype {out.dtype}" if hasattr(out, "shape") else repr(out)
+        raise ValueError(
+            f"the `noise` callable must return a float record of shape ({length},) for a "
+            f"record length of {length}, got {got}."
+        )
+    return lambda k: draw(k).astype(jnp.float64)
+
+
+def _giri(design, y1, y2, y3):
+    return estimate_giri(design, y1, y2, y3)
+
+
+# Refinement result codes are reported after the closed form's, shifted by this offset.
+REFINE_CODE_OFFSET = 100
+
+
+def _refined(design, y1, y2, y3):
+    """Closed form (the initial model), then prediction-error refinement on the three
+    experiments (issue 3). A failed closed form keeps its own code; a failed refinement
+    reports ``REFINE_CODE_OFFSET + `` its optimistix/refinement code."""
+    from ._refine import refine_traceable
+
+    first = estimate_giri(design, y1, y2, y3)
+    length = y1.shape[0]
+    inputs = (design.constant_input(length), design.binary_input(length),
+              design.staircase_input(length))
+    recordings = tuple((jnp.asarray(v), y) for v, y in zip(inputs, (y1, y2, y3)))
+    res = refine_traceable(first.model, recordings, criterion="prediction", h_m=design.h_m,
+                           max_steps=64)
+    code = jnp.asarray(getattr(res.result, "_value", res.result), jnp.int32)
+    code = jnp.where(first.result != 0, first.result,
+                     jnp.where(code != 0, REFINE_CODE_OFFSET + code, 0))
+    return _Outcome(res.model, code)
+
+
+def _resolve_estimator(estimator):
+    if estimator == "giri":
+        return _giri, "giri"
+    if estimator == "refined":
+        try:
+            from ._refine import refine_traceable  # noqa: F401
+        except ImportError:
+            raise NotImplementedError(
+                "estimator='refined' needs hbjax._refine.refine_traceable (prediction-error "
+                "refinement, issue 3), which this installation does not have; use "
+                "estimator='giri' or pass your own callable (design, y1, y2, y3) -> result "
+                "with `.model` and `.result`."
+            ) from None
+
+        return _refined, "refined"
+    if callable(estimator):
+        return estimator, getattr(estimator, "__name__", type(estimator).__name__)
+    raise ValueError(
+        f"`estimator` must be 'giri', 'refined' or a callable (design, y1, y2, y3) -> result "
+        f"with `.model` and `.result`, got {estimator!r}."
+    )
+
+
+class _Outcome:
+    def __init__(self, model, result):
+        self.model, self.result = model, result
+
+
+def _one_realisation(model, design, length, noise_std, noise, draw, estimator):
+    """``key -> (theta, code)`` for one realisation of the three experiments."""
+    v = jnp.asarray(np.stack([design.constant_input(length), design.binary_input(length),
+                              design.staircase_input(length)]))
+    simulate = jax.vmap(model.simulate_trajectory, in_axes=(0, 0, None))
+
+    def one(key):
+        e = noise_std * jax.vmap(draw)(jax.random.split(key, 3))
+        if noise == "output":
+            # The noise-free part does not depend on the key, so vmap computes it once.
+            y = simulate(v, jnp.zeros_like(v), 0.0) + e
+        else:
+            y = simulate(v, e, 0.0)
+        res = estimator(design, y[0], y[1], y[2])
+        if not isinstance(res.model, Hammerstein):
+            raise TypeError(
+                "`estimator` must return an object whose `.model` is an hbjax.Hammerstein, "
+                f"got {type(res.model).__name__}."
+            )
+        theta = flatten_params(res.model)
+        code = jnp.asarray(getattr(res.result, "_value", res.result), jnp.int32).reshape(())
+        code = jnp.where((code == 0) & ~jnp.all(jnp.isfinite(theta)), NONFINITE, code)
+        return theta, code
+
+    return one
+
+
+def _resolve_devices(devices):
+    if devices is None:
+        return list(jax.devices())
+    if isinstance(devices, jax.Device):
+        return [devices]
+    devices = list(devices)
+    if not devices or not all(isinstance(d, jax.Device) for d in devices):
+        raise TypeError("`devices` must be None or a non-empty sequence of jax.Device.")
+    return devices
+
+
+def _progress(total, enabled):
+    """A tqdm bar over chunks, or None: off when asked, and when stderr is neither a
+    terminal nor a Jupyter kernel (logs and CI stay clean)."""
+    if not enabled:
+        return None
+    in_kernel = "ipykernel" in sys.modules and "IPython" in sys.modules and getattr(
+        sys.modules["IPython"].get_ipython(), "kernel", None
+    ) is not None
+    isatty = getattr(sys.stderr, "isatty", lambda: False)()
+    if not (in_kernel or isatty):
+        return None
+    from tqdm import tqdm  # the text bar also renders in notebooks (no ipywidgets needed)
+
+    return tqdm(total=total, desc="monte carlo", unit="chunk", file=sys.stderr)
+
+
+def _to_host(x):
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return np.asarray(x)
+
+
+def monte_carlo(
+    model: Hammerstein,
+    design: GiriDesign,
+    *,
+    noise_std,
+    lengths,
+    realisations,
+    key,
+    estimator="giri",
+    noise="equation",
+    chunk_size=None,
+    progress=True,
+    devices=None,
+    keep_estimates=False,
+) -> Study:
+    """Monte Carlo study of an estimator on the paper's three experiments.
+
+    For every record length ``N`` in `lengths` and every realisation ``r``, the three
+    experiments ``v1`` (eq. (14)), ``v2`` (eq. (27)) and ``v3`` (eq. (32)) of ``N`` samples
+    each are simulated with independent noise (key ``fold_in(fold_in(key, N), r)``, split in
+    three), the estimator is applied, and the normalised estimate is compared with
+    ``normalise(model, design.h_m)``. Propositions 1-2 predict RMSE ``~ N^-1/2`` under
+    assumption A6 (white equation error); :class:`Study` reports the fitted slope.
+
+    **Arguments:**
+
+    - `model`: the true :class:`hbjax.Hammerstein`; `design`: its :class:`hbjax.GiriDesign`.
+    - `noise_std`: standard deviation of the noise (scale of the callable's record).
+    - `lengths`: record lengths per experiment, each at least one period of ``v3``.
+    - `realisations`: independent noise draws per length.
+    - `key`: a JAX PRNG key (``jax.random.key(0)``).
+    - `estimator`: ``"giri"`` (closed form, :func:`hbjax.identify_giri`'s traceable core),
+      ``"refined"`` (closed form then prediction-error refinement) or a callable
+      ``(design, y1, y2, y3) -> result`` with ``.model`` (normalised Hammerstein) and
+      ``.result`` (int code, 0 = success); it must be traceable (jit/vmap) and not raise.
+    - `noise`: ``"equation"`` (white ``xi`` of eq. (10)), ``"output"`` (white noise added to
+      ``y``) or a callable ``(key, length) -> record (length,)`` used as the equation error
+      ``xi`` (times `noise_std`), e.g. AR(1) coloured noise.
+    - `chunk_size`: realisations per device per chunk (default: about ``2**22 / N``), the
+      memory bound; a chunk runs ``chunk_size * n_devices`` realisations at once.
+    - `progress`: tqdm bar over chunks (only on a terminal or in a notebook).
+    - `devices`: devices to shard realisations over (default: all, ``jax.devices()``).
+      Results are bitwise identical for any number of devices.
+    - `keep_estimates`: keep the raw estimates in ``Study.estimates``.
+
+    **Returns:** a :class:`hbjax.Study`. Failed realisations (non-zero result code) are
+    excluded from the statistics and counted; they never abort the study.
+    """
+    require_x64("monte_carlo")
+    if not isinstance(model, Hammerstein):
+        raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    if not isinstance(design, GiriDesign):
+        raise TypeError(f"`design` must be an hbjax.GiriDesign, got {type(design).__name__}.")
+    noise_std = _check_noise_std(noise_std)
+    lengths = _check_lengths(lengths, design)
+    realisations = positive_int(realisations, "realisations")
+    key = _check_key(key)
+    if chunk_size is not None:
+        chunk_size = positive_int(chunk_size, "chunk_size")
+    estimator_fn, estimator_name = _resolve_estimator(estimator)
+    devices = _resolve_devices(devices)
+    draws = {n: _noise_draw(noise, n) for n in lengths}  # validates a callable up front
+    noise_name = noise if isinstance(noise, str) else getattr(noise, "__name__", "callable")
+    true = np.asarray(flatten_params(normalise(model, design.h_m)))
+
+    n_dev = len(devices)
+    sharding = NamedSharding(Mesh(np.array(devices), (_AXIS,)), PartitionSpec(_AXIS))
+    per_device = {
+        n: min(chunk_size or max(1, _CHUNK_SAMPLES // n), -(-realisations // n_dev))
+        for n in lengths
+    }
+    n_chunks = {n: -(-realisations // (per_device[n] * n_dev)) for n in lengths}
+    bar = _progress(sum(n_chunks.values()), progress)
+    estimates = np.empty((len(lengths), realisations, true.size))
+    codes = np.empty((len(lengths), realisations), np.int32)
+    compile_s, run_s = np.zeros(len(lengths)), np.zeros(len(lengths))
+    try:
+        for i, n in enumerate(lengths):
+            one = _one_realisation(model, design, n, noise_std, noise, draws[n], estimator_fn)
+            step = per_device[n] * n_dev
+            batched = jax.jit(jax.vmap(one), in_shardings=sharding,
+                              out_shardings=(sharding, sharding))
+            t0 = time.perf_counter()
+            spec = jax.ShapeDtypeStruct((step,), key.dtype, sharding=sharding)
+            compiled = batched.lower(spec).compile()
+            compile_s[i] = time.perf_counter() - t0
+            key_n = jax.random.fold_in(key, n)
+            t0 = time.perf_counter()
+            pending = []
+            for c in range(n_chunks[n]):
+                # Keys depend on (N, r) only: adding realisations or devices keeps old draws.
+                idx = np.arange(c * step, (c + 1) * step)
+                keys = jax.device_put(jax.vmap(jax.random.fold_in, (None, 0))(key_n, idx),
+                                      sharding)
+                pending.append((idx, compiled(keys)))  # async: the next chunk is queued
+                if len(pending) > 1:
+                    _collect(pending.pop(0), estimates[i], codes[i], realisations, bar)
+            while pending:
+                _collect(pending.pop(0), estimates[i], codes[i], realisations, bar)
+            run_s[i] = time.perf_counter() - t0
+    finally:
+        if bar is not None:
+            bar.close()
+    return Study.from_estimates(
+        lengths, param_names(model), true, estimates, codes, keep_estimates=keep_estimates,
+        compile_seconds=compile_s, run_seconds=run_s, realisations=realisations,
+        noise_std=noise_std, estimator=estimator_name, noise=noise_name, n_devices=n_dev,
+        chunk_size=int(min(per_device.values())),
+    )
+
+
+def _collect(item, estimates, codes, realisations, bar):
+    idx, (theta, code) = item
+    keep = idx < realisations  # the last chunk is padded to keep one compiled shape
+    estimates[idx[keep]] = _to_host(theta)[keep]
+    codes[idx[keep]] = _to_host(code)[keep]
+    if bar is not None:
+        bar.update(1)
