@@ -141,6 +141,143 @@ def _cmd_identify_giri(args) -> int:
     return 0
 
 
+_MC_KEYS = {
+    "model": "a model file (path relative to the config) or \"default\" (hbjax.default_system())",
+    "design": "\"n=2,m=3,h_m=4\" or {\"n\": 2, \"m\": 3, \"h_m\": 4} (default: hbjax.default_design())",
+    "noise_std": "standard deviation of the noise (required)",
+    "lengths": "record lengths per experiment, a list (required)",
+    "realisations": "noise realisations per length (required)",
+    "seed": "PRNG seed (default 0)",
+    "estimator": "\"giri\" or \"refined\" (default \"giri\")",
+    "noise": "\"equation\" or \"output\" (default \"equation\")",
+    "chunk_size": "realisations per device per chunk (default: automatic)",
+    "keep_estimates": "keep every estimate, for the histograms (default false)",
+}
+
+
+def _read_json(path, what):
+    import json
+    import pathlib
+
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{what} {str(p)!r} does not exist.")
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{p}: not valid JSON ({exc}).") from None
+
+
+def _study_config(path):
+    import pathlib
+
+    from ._defaults import default_design, default_system
+    from ._model import Hammerstein
+    from ._modelfile import load_model
+    from ._signals import GiriDesign
+
+    config = _read_json(path, "config file")
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: the config must be a JSON object with keys {sorted(_MC_KEYS)}.")
+    unknown = sorted(set(config) - set(_MC_KEYS))
+    if unknown:
+        raise ValueError(f"{path}: unknown config keys {unknown}; valid keys: {sorted(_MC_KEYS)}.")
+    missing = [k for k in ("noise_std", "lengths", "realisations") if k not in config]
+    if missing:
+        raise ValueError(f"{path}: missing config keys {missing} (see hbjax montecarlo --help).")
+    model_ref = config.get("model", "default")
+    if model_ref == "default":
+        model = default_system()
+    elif isinstance(model_ref, str):
+        model = load_model(pathlib.Path(path).parent / model_ref)
+    else:
+        raise ValueError(f"{path}: `model` must be a model-file path or \"default\".")
+    if not isinstance(model, Hammerstein):
+        raise ValueError(f"{path}: the Monte Carlo study needs an hbjax.Hammerstein model, got "
+                         f"{type(model).__name__}.")
+    design = config.get("design")
+    if design is None:
+        design = default_design()
+    elif isinstance(design, str):
+        design = _parse_design(design)
+    elif isinstance(design, dict) and set(design) == {"n", "m", "h_m"}:
+        design = GiriDesign(design["n"], design["m"], design["h_m"])
+    else:
+        raise ValueError(f"{path}: `design` must be \"n=2,m=3,h_m=4\" or an object with n, m, h_m.")
+    lengths = config["lengths"]
+    if not isinstance(lengths, list) or not lengths:
+        raise ValueError(f"{path}: `lengths` must be a non-empty list of integers.")
+    for key in ("seed", "realisations"):
+        value = config.get(key, 0)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{path}: `{key}` must be an integer, got {value!r}.")
+    return model, design, config
+
+
+def _jsonable(value):
+    """Arrays to nested lists with NaN/inf as null, numpy scalars to Python numbers."""
+    import math
+
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(x) for x in value]
+    if isinstance(value, (np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def _cmd_montecarlo(args) -> int:
+    import dataclasses
+    import io
+    import os
+
+    import jax
+
+    from . import __version__
+    from ._io import atomic_write
+    from ._modelfile import pretty_json
+    from ._monte_carlo import monte_carlo
+
+    for out in (args.out, args.plot):
+        if out is not None and os.path.abspath(out) == os.path.abspath(args.config):
+            raise ValueError(f"the output {out!r} would replace the config file; choose another name.")
+    for out in (args.out, args.plot):  # fail before a long study, not after it
+        if out is not None and os.path.exists(out) and not args.force:
+            raise FileExistsError(f"{out!r} already exists; pass --force to replace it.")
+    model, design, config = _study_config(args.config)
+    study = monte_carlo(
+        model, design,
+        noise_std=config["noise_std"], lengths=config["lengths"],
+        realisations=config["realisations"], key=jax.random.key(config.get("seed", 0)),
+        estimator=config.get("estimator", "giri"), noise=config.get("noise", "equation"),
+        chunk_size=config.get("chunk_size"), progress=not args.no_progress,
+        keep_estimates=bool(config.get("keep_estimates", False)) or args.plot is not None,
+    )
+    study.table()
+    fields = {f.name: _jsonable(getattr(study, f.name)) for f in dataclasses.fields(study)}
+    if not config.get("keep_estimates", False):
+        fields["estimates"] = None
+    doc = {"format": "hbjax-study", "hbjax_version": __version__, "config": config,
+           "design": {"n": design.n, "m": design.m, "h_m": design.h_m}, "study": fields}
+    atomic_write(args.out, pretty_json(doc) + "\n", overwrite=args.force)
+    print(f"wrote {args.out}")
+    if args.plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        fig = study.plot()
+        buf = io.BytesIO()
+        fig.savefig(buf, format=os.path.splitext(args.plot)[1].lstrip(".") or "png", dpi=120)
+        atomic_write(args.plot, buf.getvalue(), overwrite=args.force)
+        print(f"wrote {args.plot}")
+    return 0
+
+
 def _cmd_show(args) -> int:
     from ._modelfile import load_model
 
@@ -264,6 +401,27 @@ def build_parser() -> argparse.ArgumentParser:
     giri.add_argument("--out", required=True, help="model file to write (JSON)")
     giri.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     giri.set_defaults(func=_cmd_identify_giri)
+
+    mc_keys = "\n".join(f"  {k:<15} {v}" for k, v in _MC_KEYS.items())
+    mc = _add_command(
+        sub, "montecarlo", parents=[debug],
+        help="Monte Carlo study of the closed-form estimator (bias, std, RMSE vs N)",
+        description="Run hbjax.monte_carlo on the paper's three experiments: for every record "
+        "length and noise realisation simulate, identify and compare with the normalised "
+        "truth. Prints the table, writes the statistics as JSON (NaN as null) and optionally "
+        "the RMSE-vs-N figure. A progress bar runs on stderr.\n\n"
+        "The config file is a JSON object with the keys:\n\n" + mc_keys + "\n\n"
+        "For instance:\n\n"
+        '  {"model": "default", "design": "n=2,m=3,h_m=4", "noise_std": 0.5,\n'
+        '   "lengths": [1000, 4000, 16000], "realisations": 200, "seed": 0}',
+        example="hbjax montecarlo --config study_config.json --out study.json --plot study.png",
+    )
+    mc.add_argument("--config", required=True, help="study configuration (JSON, keys above)")
+    mc.add_argument("--out", required=True, help="JSON file for the study's statistics")
+    mc.add_argument("--plot", default=None, help="figure file (.png, .pdf, .svg)")
+    mc.add_argument("--no-progress", action="store_true", help="no progress bar")
+    mc.add_argument("--force", action="store_true", help="overwrite --out/--plot if they exist")
+    mc.set_defaults(func=_cmd_montecarlo)
 
     show = _add_command(
         sub, "show", parents=[debug],

@@ -120,19 +120,26 @@ def model_to_json(model: AbstractModel) -> str:
         "kind": type(model).__name__,
         "model": _encode_module(model, "model"),
     }
-    return _pretty(doc) + "\n"
+    return pretty_json(doc) + "\n"
 
 
-def _pretty(obj, depth: int = 0) -> str:
-    """JSON with one key per line but every array entry and scalar list on a single line."""
+def _is_scalar(x) -> bool:
+    return not isinstance(x, (dict, list)) or (isinstance(x, dict) and set(x) == {"float"})
+
+
+def pretty_json(obj, depth: int = 0) -> str:
+    """JSON with one key per line, but every array entry, list of numbers and matrix row on
+    a single line (strict JSON: NaN and inf are refused)."""
     flat = json.dumps(obj, allow_nan=False)
-    if not isinstance(obj, (dict, list)) or "array" in obj or len(flat) <= 60:
+    if _is_scalar(obj) or len(flat) <= 60 or (isinstance(obj, dict) and "array" in obj):
+        return flat
+    if isinstance(obj, list) and all(_is_scalar(x) for x in obj):
         return flat
     pad, inner = "  " * depth, "  " * (depth + 1)
     if isinstance(obj, list):
-        items = [inner + _pretty(x, depth + 1) for x in obj]
+        items = [inner + pretty_json(x, depth + 1) for x in obj]
         return "[\n" + ",\n".join(items) + "\n" + pad + "]"
-    items = [f"{inner}{json.dumps(k)}: {_pretty(v, depth + 1)}" for k, v in obj.items()]
+    items = [f"{inner}{json.dumps(k)}: {pretty_json(v, depth + 1)}" for k, v in obj.items()]
     return "{\n" + ",\n".join(items) + "\n" + pad + "}"
 
 

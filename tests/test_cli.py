@@ -1,6 +1,7 @@
 """The command-line tool end to end, through subprocesses on small files."""
 
 import argparse
+import json
 import os
 import pathlib
 import re
@@ -123,3 +124,30 @@ def test_console_script_is_installed():
         pytest.skip("package not installed with its console script")
     proc = subprocess.run([str(script), "--help"], capture_output=True, text=True, env=ENV, timeout=120)
     assert proc.returncode == 0 and "simulate" in proc.stdout
+
+
+def test_montecarlo_writes_statistics_and_figure(tmp_path, system, design):
+    config = {"model": "default", "design": "n=2,m=3,h_m=4", "noise_std": 0.2,
+              "lengths": [180, 360], "realisations": 4, "seed": 3}
+    (tmp_path / "cfg.json").write_text(json.dumps(config))
+    proc = run("montecarlo", "--config", "cfg.json", "--out", "study.json", "--plot", "study.png",
+               "--no-progress", cwd=tmp_path)
+    assert "log-log RMSE slope" in proc.stdout and "wrote study.json" in proc.stdout
+    doc = json.loads((tmp_path / "study.json").read_text())
+    assert doc["format"] == "hbjax-study" and doc["config"] == config
+    study = doc["study"]
+    assert study["lengths"] == [180, 360] and study["n_valid"] == [4, 4]
+    truth = hbjax.flatten_params(hbjax.normalise(system, design.h_m))
+    np.testing.assert_array_equal(study["true"], np.asarray(truth))
+    assert np.asarray(study["rmse"]).shape == (2, len(study["names"]))
+    assert study["estimates"] is None
+    assert (tmp_path / "study.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_montecarlo_config_errors(tmp_path):
+    (tmp_path / "cfg.json").write_text('{"noise_std": 0.1, "lengths": [100], "realisation": 3}')
+    proc = run("montecarlo", "--config", "cfg.json", "--out", "s.json", cwd=tmp_path, check=False)
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1
+    assert "unknown config keys ['realisation']" in proc.stderr
+    proc = run("montecarlo", "--config", "cfg.json", "--out", "cfg.json", cwd=tmp_path, check=False)
+    assert proc.returncode == 1 and "would replace the config file" in proc.stderr
