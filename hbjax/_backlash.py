@@ -3,6 +3,7 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._checks import as_float_array, is_traced
@@ -44,7 +45,8 @@ class Backlash(eqx.Module):
                 f"m-1), got {c1.shape[0]} and {c2.shape[0]}."
             )
         if not (is_traced(c1) or is_traced(c2)):
-            if not (jnp.all(jnp.isfinite(c1)) and jnp.all(jnp.isfinite(c2))):
+            # NumPy, not jnp: inside jit even constant jnp operations are traced.
+            if not (np.all(np.isfinite(c1)) and np.all(np.isfinite(c2))):
                 raise ValueError("`c1` and `c2` must be finite.")
         self.c1 = c1
         self.c2 = c2

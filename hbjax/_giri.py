@@ -26,7 +26,10 @@ UNSTABLE_A = 6
 RESULT_MESSAGES = {
     SUCCESS: "success",
     NONFINITE: "non-finite values in the records or the estimate",
-    SINGULAR_LS: "the least-squares system (26) is singular: v2 does not excite A, B*",
+    SINGULAR_LS: (
+        "the least-squares system (26) is singular: v2 does not excite A, B* (does the "
+        "+-h_m swing cross the backlash gap? assumption A4)"
+    ),
     ZERO_STATIC_GAIN: "B*(1) is not significantly different from 0 (assumption A5 fails)",
     GAP_NOT_CROSSED: (
         "the data contradict the design: v = +h_m does not put the output on P1 and "

@@ -1,0 +1,491 @@
+"""Bad input at every public entry point: a clear error naming the argument, never a silent
+NaN or a wrong-shape result (issue 7).
+
+Three tables drive the tests:
+
+- ``CASES``: refused inputs, each with the exception type and a message fragment;
+- ``PROMOTED``: accepted inputs (integer, float32, bool, lists) that must give exactly the
+  float64 result;
+- ``TRACED``: value checks that run inside ``jax.jit``/``jax.vmap`` (``eqx.error_if``) and
+  whose message must survive both.
+
+``tests/README.md`` lists the classes and the number of cases of each; regenerate it with
+``python tests/test_robustness.py`` (``test_readme_counts_are_current`` fails when stale).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import io
+import pathlib
+import re
+import sys
+from collections import Counter
+from typing import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hbjax
+from hbjax._cli import main as cli_main
+from hbjax._modelfile import ModelFileError
+
+# ----------------------------------------------------------------------------- fixtures
+# Module-level, built lazily: table entries are lambdas ``call(tmp)`` with ``tmp`` a fresh
+# temporary folder (pathlib.Path).
+
+M = hbjax.default_system()
+D = hbjax.default_design()
+BL, ARX = M.backlash, M.arx
+H_M = D.h_m
+V = D.staircase_input(60)
+Y = np.linspace(-1.0, 1.0, 60)
+THETA = np.asarray(hbjax.flatten_params(M))
+T_GIRI = 400
+
+
+@functools.cache
+def records(which: str = "default", T: int = T_GIRI, noise_std: float = 0.0):
+    """Outputs ``(y1, y2, y3)`` of the paper's three experiments for a few systems."""
+    model = {
+        "default": M,
+        "zero_gain": hbjax.Hammerstein(BL, hbjax.ARX([-1.2, 0.5], [1.0, -1.0])),
+        "unstable": hbjax.Hammerstein(BL, hbjax.ARX([-1.5, 0.2], [1.0, 0.5])),
+    }[which]
+    rng = np.random.default_rng(7)
+    return tuple(
+        np.asarray(hbjax.simulate(model, v, noise_std * rng.standard_normal(T)))
+        for v in (D.constant_input(T), D.binary_input(T), D.staircase_input(T))
+    )
+
+
+def model_with(a=None, b=None, c1=None, c2=None):
+    return hbjax.Hammerstein(
+        hbjax.Backlash(BL.c1 if c1 is None else c1, BL.c2 if c2 is None else c2),
+        hbjax.ARX(ARX.a if a is None else a, ARX.b if b is None else b),
+    )
+
+
+UNSTABLE = model_with(a=[-1.5, 0.2])
+ZERO_GAIN = model_with(b=[1.0, -1.0])
+CROSSING = model_with(c1=[-1.0, 0.9, 0.2])  # P1 - P2 changes sign at v = +-3.09
+MU_ZERO = hbjax.Hammerstein(hbjax.Backlash([0.0, 1.0], [0.0, -1.0]), hbjax.ARX([-0.5], [1.0]))
+
+
+def with_nan(x, i=3, value=np.nan):
+    x = np.array(x, dtype=float)
+    x[i] = value
+    return x
+
+
+def model_file(tmp) -> pathlib.Path:
+    p = tmp / "model.json"
+    if not p.exists():
+        hbjax.save_model(p, M)
+    return p
+
+
+def text_file(tmp, name, text) -> pathlib.Path:
+    p = tmp / name
+    p.write_text(text)
+    return p
+
+
+class CLIError(Exception):
+    """A CLI run that exited non-zero; the message is ``exit <status>: <stderr>``."""
+
+
+def cli(*argv):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            status = cli_main([str(a) for a in argv])
+        except SystemExit as exc:  # argparse usage errors
+            status = exc.code
+    if status != 0:
+        raise CLIError(f"exit {status}: {err.getvalue().strip()}")
+    return status
+
+
+# ----------------------------------------------------------------------------- the tables
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    kind: str  # bad-input class (a row of tests/README.md)
+    target: str  # the public function or class
+    call: Callable  # call(tmp) -> must raise
+    exc: type
+    match: str  # regular expression searched in the message
+
+
+CASES: list[Case] = []
+
+
+def bad(kind, target, exc, match, call):
+    CASES.append(Case(kind, target, call, exc, match))
+
+
+WRONG_TYPE = "wrong type (not a model/design/recording, strings)"
+RANK = "wrong rank or shape"
+LENGTH = "length mismatch"
+EMPTY = "empty array"
+NONFINITE = "NaN or inf"
+DTYPE = "refused dtype (complex, object, text)"
+ORDER = "non-integer or negative order / count"
+H_M_BAD = "h_m <= 0 or not a number"
+COEF = "coefficient array of the wrong length / orders"
+V2 = "input record not the design's signal (v2 not in {-h_m, +h_m})"
+SHORT = "record shorter than one period"
+GAIN = "B*(1) = 0 (assumption A5)"
+MU = "mu = 0 / swing does not cross the gap (A4)"
+UNSTABLE_A = "unstable A (assumption A3)"
+CROSS = "branches cross inside the excited range"
+KEY = "wrong key type"
+FILES = "files: missing, corrupted, existing, bad folder"
+CLI = "command line"
+
+# --- wrong types
+bad(WRONG_TYPE, "simulate", TypeError, "`model` must be an hbjax.AbstractModel", lambda t: hbjax.simulate(BL, V))
+bad(WRONG_TYPE, "simulate", TypeError, "`model` must be an hbjax.AbstractModel", lambda t: hbjax.simulate(None, V))
+bad(WRONG_TYPE, "simulate", TypeError, "`v` must be a numeric array", lambda t: hbjax.simulate(M, "0.5, 1.0"))
+bad(WRONG_TYPE, "simulate", TypeError, "`noise` must be a numeric array", lambda t: hbjax.simulate(M, V, "xi"))
+bad(WRONG_TYPE, "simulate", TypeError, "`u0` must be a numeric array", lambda t: hbjax.simulate(M, V, u0=None))
+bad(WRONG_TYPE, "play", TypeError, "`backlash` must be an hbjax.Backlash", lambda t: hbjax.play(M, V))
+bad(WRONG_TYPE, "predict", TypeError, "`model` must be an hbjax.AbstractModel", lambda t: hbjax.predict("model", V, Y))
+bad(WRONG_TYPE, "predict", TypeError, "`y` must be a numeric array", lambda t: hbjax.predict(M, V, None))
+bad(WRONG_TYPE, "Hammerstein", TypeError, "`backlash` must be an hbjax.Backlash", lambda t: hbjax.Hammerstein(ARX, BL))
+bad(WRONG_TYPE, "Hammerstein", TypeError, "`arx` must be an hbjax.ARX", lambda t: hbjax.Hammerstein(BL, BL))
+bad(WRONG_TYPE, "Backlash", TypeError, "`c1` must be a numeric array", lambda t: hbjax.Backlash("1 2", [1.0, 2.0]))
+bad(WRONG_TYPE, "ARX", TypeError, "`b` must be a numeric array", lambda t: hbjax.ARX([0.5], None))
+bad(WRONG_TYPE, "identify_giri", TypeError, "`design` must be an hbjax.GiriDesign", lambda t: hbjax.identify_giri((2, 3, 4.0), *records()))
+bad(WRONG_TYPE, "normalise", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: hbjax.normalise(BL, H_M))
+bad(WRONG_TYPE, "normalise", TypeError, "`h_m` must be a numeric array", lambda t: hbjax.normalise(M, "4"))
+bad(WRONG_TYPE, "GiriDesign", TypeError, "`h_m` must be a real number", lambda t: hbjax.GiriDesign(2, 3, "4"))
+bad(WRONG_TYPE, "GiriDesign", TypeError, "`h_m` must be a real number", lambda t: hbjax.GiriDesign(2, 3, True))
+bad(WRONG_TYPE, "GiriDesign", TypeError, "`h_m` must be a real number", lambda t: hbjax.GiriDesign(2, 3, [4.0]))
+bad(WRONG_TYPE, "GiriDesign.check_model", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: D.check_model(ARX))
+bad(WRONG_TYPE, "flatten_params", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: hbjax.flatten_params(ARX))
+bad(WRONG_TYPE, "unflatten_params", TypeError, "`like` must be an hbjax.Hammerstein", lambda t: hbjax.unflatten_params(BL, THETA))
+bad(WRONG_TYPE, "param_names", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: hbjax.param_names(None))
+bad(WRONG_TYPE, "Recording", TypeError, "`v` must be a numeric array", lambda t: hbjax.Recording("abc", [1.0]))
+bad(WRONG_TYPE, "Recording", TypeError, "`dt` must be a positive float", lambda t: hbjax.Recording([1.0], [1.0], dt="1"))
+bad(WRONG_TYPE, "save_model", TypeError, "`model` must be an hbjax model", lambda t: hbjax.save_model(t / "m.json", BL))
+bad(WRONG_TYPE, "save_recording", TypeError, "`recording` must be an hbjax.Recording", lambda t: hbjax.save_recording(t / "r.csv", (V, Y)))
+bad(WRONG_TYPE, "load_recording", TypeError, "`input` must be a column name or index", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n1,2\n"), input=1.5))
+
+# --- rank / shape
+bad(RANK, "simulate", ValueError, "`v` must be a 1-D array, got shape \\(60, 1\\)", lambda t: hbjax.simulate(M, V[:, None]))
+bad(RANK, "simulate", ValueError, "`v` must be a 1-D array, got shape \\(\\)", lambda t: hbjax.simulate(M, 1.0))
+bad(RANK, "simulate", ValueError, "`noise` must be a 1-D array", lambda t: hbjax.simulate(M, V, np.zeros((60, 2))))
+bad(RANK, "simulate", ValueError, "`u0` must be a scalar", lambda t: hbjax.simulate(M, V, u0=np.zeros(2)))
+bad(RANK, "simulate", ValueError, "`v` must be a numeric array of regular shape", lambda t: hbjax.simulate(M, [[1.0, 2.0], [3.0]]))
+bad(RANK, "play", ValueError, "`v` must be a 1-D array", lambda t: hbjax.play(BL, np.stack([V, V])))
+bad(RANK, "play", ValueError, "`u0` must be a scalar", lambda t: hbjax.play(BL, V, u0=[0.0]))
+bad(RANK, "predict", ValueError, "`y` must be a 1-D array", lambda t: hbjax.predict(M, V, Y[:, None]))
+bad(RANK, "Backlash", ValueError, "`c1` must be a 1-D array", lambda t: hbjax.Backlash([[1.0, 2.0]], [[1.0, 2.0]]))
+bad(RANK, "Backlash", ValueError, "`c2` must be a 1-D array", lambda t: hbjax.Backlash([1.0], 2.0))
+bad(RANK, "ARX", ValueError, "`a` must be a 1-D array", lambda t: hbjax.ARX([[0.5]], [1.0]))
+bad(RANK, "identify_giri", ValueError, "`y1` must be a 1-D array", lambda t: hbjax.identify_giri(D, records()[0][:, None], *records()[1:]))
+bad(RANK, "identify_giri", ValueError, "`v2` must be a 1-D array", lambda t: hbjax.identify_giri(D, *records(), v2=D.binary_input(T_GIRI)[None]))
+bad(RANK, "normalise", ValueError, "`h_m` must be a scalar", lambda t: hbjax.normalise(M, [4.0, 5.0]))
+bad(RANK, "unflatten_params", ValueError, "`theta` must have shape \\(10,\\)", lambda t: hbjax.unflatten_params(M, THETA[None]))
+bad(RANK, "Recording", ValueError, "`v` must be a 1-D array", lambda t: hbjax.Recording(np.ones((3, 2)), np.ones((3, 2))))
+
+# --- length mismatch
+bad(LENGTH, "simulate", ValueError, "`v` has 60, `noise` has 59", lambda t: hbjax.simulate(M, V, np.zeros(59)))
+bad(LENGTH, "predict", ValueError, "`v` has 60, `y` has 10", lambda t: hbjax.predict(M, V, Y[:10]))
+bad(LENGTH, "identify_giri", ValueError, "`v3` is not the design's signal \\(length 399 vs 400\\)", lambda t: hbjax.identify_giri(D, *records(), v3=D.staircase_input(399)))
+bad(LENGTH, "identify_giri", ValueError, "`v1` is not the design's signal", lambda t: hbjax.identify_giri(D, *records(), v1=D.constant_input(T_GIRI + 1)))
+bad(LENGTH, "Recording", ValueError, "`v` and `y` must have equal lengths, got 3 and 2", lambda t: hbjax.Recording([1.0, 2.0, 3.0], [1.0, 2.0]))
+bad(LENGTH, "load_recording", ValueError, "ragged row 3", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n1,2\n3\n")))
+
+# --- empty
+bad(EMPTY, "simulate", ValueError, "`v` must have at least 1 samples, got 0", lambda t: hbjax.simulate(M, np.zeros(0)))
+bad(EMPTY, "play", ValueError, "`v` must have at least 1 samples", lambda t: hbjax.play(BL, []))
+bad(EMPTY, "predict", ValueError, "`v` must have at least 1 samples", lambda t: hbjax.predict(M, [], []))
+bad(EMPTY, "Backlash", ValueError, "`c1` must hold at least one coefficient", lambda t: hbjax.Backlash([], []))
+bad(EMPTY, "ARX", ValueError, "`b` must hold at least one coefficient", lambda t: hbjax.ARX([0.5], []))
+bad(EMPTY, "identify_giri", ValueError, "`y1` has 0 samples", lambda t: hbjax.identify_giri(D, [], *records()[1:]))
+bad(EMPTY, "load_recording", ValueError, "the file is empty", lambda t: hbjax.load_recording(text_file(t, "r.csv", "\n# only a comment\n")))
+bad(EMPTY, "load_recording", ValueError, "header row but no data rows", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n")))
+
+# --- NaN / inf
+bad(NONFINITE, "simulate", ValueError, "`v` contains NaN or inf \\(1 samples, first at index 3\\)", lambda t: hbjax.simulate(M, with_nan(V)))
+bad(NONFINITE, "simulate", ValueError, "`noise` contains NaN or inf", lambda t: hbjax.simulate(M, V, with_nan(np.zeros(60), 59, np.inf)))
+bad(NONFINITE, "simulate", ValueError, "`u0` contains NaN or inf", lambda t: hbjax.simulate(M, V, u0=np.nan))
+bad(NONFINITE, "play", ValueError, "`v` contains NaN or inf", lambda t: hbjax.play(BL, with_nan(V, 0, -np.inf)))
+bad(NONFINITE, "predict", ValueError, "`y` contains NaN or inf", lambda t: hbjax.predict(M, V, with_nan(Y)))
+bad(NONFINITE, "Backlash", ValueError, "`c1` and `c2` must be finite", lambda t: hbjax.Backlash([np.nan, 1.0], [0.0, 1.0]))
+bad(NONFINITE, "ARX", ValueError, "`a` and `b` must be finite", lambda t: hbjax.ARX([np.inf], [1.0]))
+bad(NONFINITE, "identify_giri", ValueError, "`y2` contains NaN or inf", lambda t: hbjax.identify_giri(D, records()[0], with_nan(records()[1], 399), records()[2]))
+bad(NONFINITE, "normalise", ValueError, "`h_m` must be > 0, got nan", lambda t: hbjax.normalise(M, np.nan))
+bad(NONFINITE, "GiriDesign", ValueError, "`h_m` must be a finite number > 0, got inf", lambda t: hbjax.GiriDesign(2, 3, np.inf))
+bad(NONFINITE, "unflatten_params", ValueError, "`theta` contains NaN or inf", lambda t: hbjax.unflatten_params(M, with_nan(THETA)))
+bad(NONFINITE, "Recording", ValueError, "`y` contains NaN or inf \\(1 samples, first at index 1\\)", lambda t: hbjax.Recording([1.0, 2.0], [1.0, np.nan]))
+bad(NONFINITE, "load_recording", ValueError, "not finite\\) at row 3", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n1,2\n3,nan\n")))
+
+# --- refused dtypes
+bad(DTYPE, "simulate", TypeError, "`v` must be real, got complex", lambda t: hbjax.simulate(M, V + 1j))
+bad(DTYPE, "simulate", TypeError, "`v` must be a numeric array, got dtype <U", lambda t: hbjax.simulate(M, np.array(["1", "2"])))
+bad(DTYPE, "predict", TypeError, "`y` must be a numeric array, got dtype object", lambda t: hbjax.predict(M, V, np.array([None] * 60)))
+bad(DTYPE, "Backlash", TypeError, "`c2` must be real", lambda t: hbjax.Backlash([1.0], [1j]))
+bad(DTYPE, "identify_giri", TypeError, "`y3` must be real", lambda t: hbjax.identify_giri(D, *records()[:2], records()[2] + 0j))
+bad(DTYPE, "Recording", TypeError, "`v` must be real", lambda t: hbjax.Recording([1j], [1.0]))
+
+# --- orders and counts
+bad(ORDER, "GiriDesign", ValueError, "`n` must be an integer >= 1, got 0", lambda t: hbjax.GiriDesign(0, 3, 4.0))
+bad(ORDER, "GiriDesign", ValueError, "`n` must be an integer >= 1, got -1", lambda t: hbjax.GiriDesign(-1, 3, 4.0))
+bad(ORDER, "GiriDesign", TypeError, "`n` must be an integer, got 2.5", lambda t: hbjax.GiriDesign(2.5, 3, 4.0))
+bad(ORDER, "GiriDesign", TypeError, "`n` must be an integer, got 2.0", lambda t: hbjax.GiriDesign(2.0, 3, 4.0))
+bad(ORDER, "GiriDesign", TypeError, "`n` must be an integer, got True", lambda t: hbjax.GiriDesign(True, 3, 4.0))
+bad(ORDER, "GiriDesign", TypeError, "`m` must be an integer, got '3'", lambda t: hbjax.GiriDesign(2, "3", 4.0))
+bad(ORDER, "GiriDesign", ValueError, "`m` must be an integer >= 1, got 0", lambda t: hbjax.GiriDesign(2, 0, 4.0))
+bad(ORDER, "GiriDesign.constant_input", TypeError, "`T` must be an integer, got 1.5", lambda t: D.constant_input(1.5))
+bad(ORDER, "GiriDesign.binary_input", ValueError, "`T` must be an integer >= 8, got -1", lambda t: D.binary_input(-1))
+bad(ORDER, "GiriDesign.staircase_input", TypeError, "`T` must be an integer, got None", lambda t: D.staircase_input(None))
+bad(ORDER, "GiriDesign.estimation_instants", ValueError, "`T` must be an integer >= 18, got 0", lambda t: D.estimation_instants(0))
+bad(ORDER, "identify_giri", ValueError, "`transient` must be a non-negative integer, got -1", lambda t: hbjax.identify_giri(D, *records(), transient=-1))
+bad(ORDER, "identify_giri", ValueError, "`transient` must be a non-negative integer, got 2.5", lambda t: hbjax.identify_giri(D, *records(), transient=2.5))
+bad(ORDER, "identify_giri", ValueError, "`transient` \\(400\\) leaves no sample of `y1`", lambda t: hbjax.identify_giri(D, *records(), transient=T_GIRI))
+
+# --- h_m
+bad(H_M_BAD, "GiriDesign", ValueError, "`h_m` must be a finite number > 0, got 0", lambda t: hbjax.GiriDesign(2, 3, 0.0))
+bad(H_M_BAD, "GiriDesign", ValueError, "`h_m` must be a finite number > 0, got -4", lambda t: hbjax.GiriDesign(2, 3, -4.0))
+bad(H_M_BAD, "normalise", ValueError, "`h_m` must be > 0, got 0.0", lambda t: hbjax.normalise(M, 0.0))
+bad(H_M_BAD, "normalise", ValueError, "`h_m` must be > 0, got -1.0", lambda t: hbjax.normalise(M, -1))
+
+# --- coefficient lengths / orders
+bad(COEF, "Backlash", ValueError, "`c1` and `c2` must have the same length m", lambda t: hbjax.Backlash([1.0, 2.0], [1.0, 2.0, 3.0]))
+bad(COEF, "unflatten_params", ValueError, "`theta` must have shape \\(10,\\) for na=2, nb=2, m=3, got \\(9,\\)", lambda t: hbjax.unflatten_params(M, THETA[:9]))
+bad(COEF, "GiriDesign.check_model", ValueError, "orders na=1, nb=2, m=3 but the design expects", lambda t: D.check_model(model_with(a=[0.5])))
+bad(COEF, "GiriDesign.check_model", ValueError, "orders na=2, nb=2, m=2 but the design expects", lambda t: D.check_model(model_with(c1=[0.0, 1.0], c2=[1.0, 1.0])))
+
+# --- input records that are not the design's signals
+bad(V2, "identify_giri", ValueError, "`v2` must take values in \\{-h_m, \\+h_m\\}.*sample 0 is 2.0", lambda t: hbjax.identify_giri(D, *records(), v2=0.5 * D.binary_input(T_GIRI)))
+bad(V2, "identify_giri", ValueError, "`v2` must take values in \\{-h_m, \\+h_m\\}.*sample 5 is 0.0", lambda t: hbjax.identify_giri(D, *records(), v2=with_nan(D.binary_input(T_GIRI), 5, 0.0)))
+bad(V2, "identify_giri", ValueError, "`v2` is not the design's signal \\(first difference at sample 0\\)", lambda t: hbjax.identify_giri(D, *records(), v2=-D.binary_input(T_GIRI)))
+bad(V2, "identify_giri", ValueError, "`v3` is not the design's signal", lambda t: hbjax.identify_giri(D, *records(), v3=D.staircase_input(T_GIRI)[::-1]))
+bad(V2, "identify_giri", ValueError, "`v1` is not the design's signal", lambda t: hbjax.identify_giri(D, *records(), v1=np.full(T_GIRI, H_M)))
+
+# --- records shorter than one period
+bad(SHORT, "identify_giri", ValueError, "`y2` has 7 samples; it must cover at least one period 4n", lambda t: hbjax.identify_giri(D, records()[0], records()[1][:7], records()[2]))
+bad(SHORT, "identify_giri", ValueError, "`y3` has 17 samples; it must cover at least one period 2m\\(n\\+1\\)", lambda t: hbjax.identify_giri(D, *records()[:2], records()[2][:17]))
+bad(SHORT, "identify_giri", ValueError, "`y1` has 3 samples", lambda t: hbjax.identify_giri(D, records()[0][:3], *records()[1:]))
+bad(SHORT, "GiriDesign.binary_input", ValueError, "`T` must be an integer >= 8, got 7", lambda t: D.binary_input(7))
+bad(SHORT, "GiriDesign.staircase_input", ValueError, "`T` must be an integer >= 18, got 17", lambda t: D.staircase_input(17))
+bad(SHORT, "GiriDesign.constant_input", ValueError, "`T` must be an integer >= 2, got 1", lambda t: D.constant_input(1))
+
+# --- assumption A5
+bad(GAIN, "identify_giri", ValueError, "B\\*\\(1\\) is not significantly different from 0", lambda t: hbjax.identify_giri(D, *records("zero_gain", 1000, 0.1)))
+bad(GAIN, "GiriDesign.check_model", ValueError, "`model` has B\\(1\\) = 0; assumption A5", lambda t: D.check_model(ZERO_GAIN, assumptions=True))
+
+# --- mu = 0, or a swing that does not cross the gap
+bad(MU, "normalise", ValueError, "mu = P2\\(-h_m\\) - P1\\(h_m\\) is 0 for this `model`", lambda t: hbjax.normalise(MU_ZERO, 1.0))
+bad(MU, "GiriDesign.check_model", ValueError, "v = \\+h_m does not put the output on P1.*assumption A4", lambda t: hbjax.GiriDesign(2, 3, 0.5).check_model(M, assumptions=True))
+SMALL_H = hbjax.GiriDesign(2, 3, 0.5)  # +-0.5 stays inside the band of the default system
+bad(MU, "identify_giri", ValueError, "v2 does not excite A, B\\* \\(does the \\+-h_m swing cross the backlash gap\\? assumption A4\\)", lambda t: hbjax.identify_giri(SMALL_H, *(np.asarray(hbjax.simulate(M, v)) for v in (SMALL_H.constant_input(400), SMALL_H.binary_input(400), SMALL_H.staircase_input(400)))))
+
+# --- assumption A3
+bad(UNSTABLE_A, "simulate", ValueError, "overflows to inf/NaN from sample \\d+ on: the ARX block of `model` is unstable", lambda t: hbjax.simulate(UNSTABLE, np.full(5000, H_M)))
+bad(UNSTABLE_A, "GiriDesign.check_model", ValueError, "`model` has an unstable A \\(largest pole modulus 1.35", lambda t: D.check_model(UNSTABLE, assumptions=True))
+bad(UNSTABLE_A, "identify_giri", ValueError, "the estimated A is unstable \\(assumption A3 fails\\)", lambda t: hbjax.identify_giri(D, *records("unstable")))
+
+# --- crossing branches
+bad(CROSS, "GiriDesign.check_model", ValueError, "branches P1, P2 of `model` cross near v = -3.09", lambda t: D.check_model(CROSSING, assumptions=True))
+
+# --- files
+bad(FILES, "load_model", FileNotFoundError, "model file .*missing.json' does not exist", lambda t: hbjax.load_model(t / "missing.json"))
+bad(FILES, "load_model", ModelFileError, "not a valid JSON model file", lambda t: hbjax.load_model(text_file(t, "m.json", model_file(t).read_text()[:200])))
+bad(FILES, "load_model", ModelFileError, "not an hbjax model file", lambda t: hbjax.load_model(text_file(t, "m.json", '{"model": {}}')))
+bad(FILES, "load_model", ModelFileError, "`model.backlash.c1` must hold 3 values", lambda t: hbjax.load_model(text_file(t, "m.json", re.sub(r'("c1": \{"array": \[)[^,]*,', r"\1", model_file(t).read_text()))))
+bad(FILES, "load_model", ModelFileError, "format_version 99 is not supported", lambda t: hbjax.load_model(text_file(t, "m.json", model_file(t).read_text().replace('"format_version": 1', '"format_version": 99'))))
+bad(FILES, "load_model", ModelFileError, "non-finite coefficients", lambda t: hbjax.load_model(text_file(t, "m.json", re.sub(r'("a": \{"array": \[)[^,]*', r'\1{"float": "nan"}', model_file(t).read_text()))))
+bad(FILES, "save_model", FileExistsError, "already exists; pass overwrite=True", lambda t: hbjax.save_model(model_file(t), M))
+bad(FILES, "save_model", FileNotFoundError, "folder .*nowhere' .* does not exist", lambda t: hbjax.save_model(t / "nowhere" / "m.json", M))
+bad(FILES, "save_model", IsADirectoryError, "is a directory", lambda t: hbjax.save_model(t, M, overwrite=True))
+bad(FILES, "load_recording", FileNotFoundError, "recording file .* does not exist", lambda t: hbjax.load_recording(t / "missing.csv"))
+bad(FILES, "load_recording", ValueError, "non-numeric cell 'x' at row 2, column 1 \\('y'\\)", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n1,x\n")))
+bad(FILES, "load_recording", ValueError, "not a readable .npz archive", lambda t: hbjax.load_recording(text_file(t, "r.npz", "not a zip")))
+bad(FILES, "load_recording", ValueError, "not valid JSON", lambda t: hbjax.load_recording(text_file(t, "r.json", "{")))
+bad(FILES, "save_recording", FileExistsError, "already exists", lambda t: hbjax.save_recording(text_file(t, "r.csv", "old"), hbjax.Recording(V, Y)))
+
+# --- command line (in-process; exit status and the one-line message)
+bad(CLI, "hbjax (no command)", CLIError, "exit 2: usage: hbjax", lambda t: cli())
+bad(CLI, "hbjax show", CLIError, "exit 1: hbjax show: error: model file .* does not exist", lambda t: cli("show", t / "missing.json"))
+bad(CLI, "hbjax show", CLIError, "exit 1: hbjax show: error: .*not a valid JSON model file", lambda t: cli("show", text_file(t, "m.json", "{")))
+bad(CLI, "hbjax signals", CLIError, "exit 1: .*--design .*`h_m` must be a finite number > 0", lambda t: cli("signals", "--design", "n=2,m=3,h_m=0", "--samples", 40, "--prefix", t / "v"))
+bad(CLI, "hbjax signals", CLIError, "exit 1: .*--design needs exactly n, m and h_m", lambda t: cli("signals", "--design", "n=2,m=3", "--samples", 40, "--prefix", t / "v"))
+bad(CLI, "hbjax signals", CLIError, "exit 1: .*`T` must be an integer >= 18, got 10", lambda t: cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", 10, "--prefix", t / "v"))
+bad(CLI, "hbjax signals", CLIError, "exit 2: .*--samples: invalid int value", lambda t: cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", "many"))
+bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--noise-std must be >= 0", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", t / "y.csv", "--noise-std", -1))
+bad(CLI, "hbjax simulate", CLIError, "exit 1: .*not finite\\) at row 3", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\ninf\n"), "--out", t / "y.csv"))
+bad(CLI, "hbjax simulate", CLIError, "exit 1: .*already exists", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", model_file(t)))
+bad(CLI, "hbjax identify giri", CLIError, "exit 1: .*`y\\d` has \\d+ samples; it must cover at least", lambda t: cli("identify", "giri", "--design", "n=2,m=3,h_m=4", *[text_file(t, f"y{k}.csv", "y\n1\n2\n3\n") for k in (1, 2, 3)], "--out", t / "m2.json"))
+
+
+# ----------------------------------------------------------------------------- accepted inputs
+
+
+@dataclasses.dataclass(frozen=True)
+class Promoted:
+    target: str
+    what: str
+    call: Callable[[], object]  # with the promoted input
+    reference: Callable[[], object]  # the same input converted to float64 by hand
+
+
+PROMOTED = [
+    Promoted("simulate", "int64 v", lambda: hbjax.simulate(M, np.arange(-5, 5)), lambda: hbjax.simulate(M, np.arange(-5.0, 5.0))),
+    Promoted("simulate", "float32 v", lambda: hbjax.simulate(M, V.astype(np.float32)), lambda: hbjax.simulate(M, V.astype(np.float32).astype(np.float64))),
+    Promoted("simulate", "float32 jax v, int u0", lambda: hbjax.simulate(M, jnp.asarray(V, jnp.float32), u0=1), lambda: hbjax.simulate(M, V.astype(np.float32).astype(np.float64), u0=1.0)),
+    Promoted("simulate", "bool v", lambda: hbjax.simulate(M, V > 0), lambda: hbjax.simulate(M, (V > 0).astype(float))),
+    Promoted("simulate", "list v and noise", lambda: hbjax.simulate(M, [1, 2, 3], [0, 0, 1]), lambda: hbjax.simulate(M, np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.0, 1.0]))),
+    Promoted("play", "float32 v", lambda: hbjax.play(BL, V.astype(np.float32)), lambda: hbjax.play(BL, V.astype(np.float32).astype(np.float64))),
+    Promoted("predict", "int y", lambda: hbjax.predict(M, V, np.arange(60)), lambda: hbjax.predict(M, V, np.arange(60.0))),
+    Promoted("Backlash", "int coefficients", lambda: hbjax.play(hbjax.Backlash([-1, 1], [1, 1]), V), lambda: hbjax.play(hbjax.Backlash([-1.0, 1.0], [1.0, 1.0]), V)),
+    Promoted("ARX", "float32 coefficients", lambda: hbjax.simulate(hbjax.Hammerstein(BL, hbjax.ARX(np.float32([-0.5]), np.float32([1.0]))), V), lambda: hbjax.simulate(hbjax.Hammerstein(BL, hbjax.ARX([-0.5], [1.0])), V)),
+    Promoted("identify_giri", "float32 records", lambda: hbjax.identify_giri(D, *(y.astype(np.float32) for y in records())).model, lambda: hbjax.identify_giri(D, *(y.astype(np.float32).astype(np.float64) for y in records())).model),
+    Promoted("normalise", "int h_m", lambda: hbjax.normalise(M, 4), lambda: hbjax.normalise(M, 4.0)),
+    Promoted("GiriDesign", "numpy integer n, int h_m", lambda: hbjax.GiriDesign(np.int64(2), np.int32(3), 4).staircase_input(40), lambda: D.staircase_input(40)),
+    Promoted("unflatten_params", "float32 theta", lambda: hbjax.unflatten_params(M, THETA.astype(np.float32)), lambda: hbjax.unflatten_params(M, THETA.astype(np.float32).astype(np.float64))),
+    Promoted("Recording", "int lists", lambda: hbjax.Recording([1, 2], [3, 4]).v, lambda: np.array([1.0, 2.0])),
+]
+
+
+# ----------------------------------------------------------------------------- traced checks
+
+
+@dataclasses.dataclass(frozen=True)
+class Traced:
+    target: str
+    fn: Callable  # fn(x) with x traced
+    good: object
+    bad: object
+    match: str
+
+
+# P1 = v^2, P2 = 1: mu = 1 - h_m^2 vanishes at h_m = 1 only.
+MU_ZERO_AT_1 = hbjax.Hammerstein(hbjax.Backlash([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]), hbjax.ARX([-0.5], [1.0]))
+TRACED = [
+    Traced("simulate (v)", lambda v: hbjax.simulate(M, v), V, with_nan(V), "`v` contains NaN or inf"),
+    Traced("simulate (noise)", lambda xi: hbjax.simulate(M, V, xi), np.zeros(60), with_nan(np.zeros(60), 0, np.inf), "`noise` contains NaN or inf"),
+    Traced("simulate (u0)", lambda u0: hbjax.simulate(M, V, u0=u0), 0.5, np.nan, "`u0` contains NaN or inf"),
+    Traced("simulate (model)", lambda c: hbjax.simulate(model_with(c1=c), V), np.asarray(BL.c1), with_nan(BL.c1, 1), "`model` has NaN or inf coefficients"),
+    Traced("play (v)", lambda v: hbjax.play(BL, v), V, with_nan(V), "`v` contains NaN or inf"),
+    Traced("predict (y)", lambda y: hbjax.predict(M, V, y), Y, with_nan(Y, 59, -np.inf), "`y` contains NaN or inf"),
+    Traced("predict (model)", lambda a: hbjax.predict(model_with(a=a), V, Y), np.asarray(ARX.a), with_nan(ARX.a, 0), "`model` has NaN or inf coefficients"),
+    Traced("normalise (h_m <= 0)", lambda h: hbjax.normalise(M, h).arx.b, H_M, 0.0, "`h_m` must be > 0"),
+    Traced("normalise (mu = 0)", lambda h: hbjax.normalise(MU_ZERO_AT_1, h).arx.b, 2.0, 1.0, "mu = P2\\(-h_m\\) - P1\\(h_m\\) is 0"),
+    Traced("identify_giri (y2)", lambda y2: hbjax.identify_giri(D, records()[0], y2, records()[2], throw=False).result, records()[1], with_nan(records()[1], 100), "`y2` contains NaN or inf"),
+]
+
+
+# ----------------------------------------------------------------------------- tests
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{c.target}-{i}" for i, c in enumerate(CASES)])
+def test_bad_input_is_refused_with_a_clear_message(case, tmp_path):
+    with pytest.raises(case.exc) as info:
+        case.call(tmp_path)
+    assert re.search(case.match, str(info.value), re.S), f"{info.value!s} !~ {case.match}"
+    if case.exc is not CLIError:
+        # One message naming what was wrong: never an internal error from deeper down.
+        assert "Traceback" not in str(info.value)
+
+
+def _leaves(x):
+    return [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(x)]
+
+
+@pytest.mark.parametrize("case", PROMOTED, ids=[f"{c.target}-{c.what}" for c in PROMOTED])
+def test_promoted_inputs_give_the_float64_result_exactly(case):
+    got, want = _leaves(case.call()), _leaves(case.reference())
+    assert len(got) == len(want)
+    for g, w in zip(got, want):
+        assert g.dtype == w.dtype and g.shape == w.shape
+        if g.dtype.kind == "f":
+            assert g.dtype == np.float64
+            assert np.all(np.isfinite(g))
+        np.testing.assert_array_equal(g, w)
+
+
+@pytest.mark.parametrize("case", TRACED, ids=[c.target for c in TRACED])
+@pytest.mark.parametrize("transform", ["jax.jit", "eqx.filter_jit", "jax.vmap"])
+def test_value_checks_survive_jit_and_vmap(case, transform):
+    good, bad_ = jnp.asarray(case.good), jnp.asarray(case.bad)
+    if transform == "jax.vmap":
+        fn, good, bad_ = jax.vmap(case.fn), jnp.stack([good, good]), jnp.stack([good, bad_])
+    else:
+        fn = {"jax.jit": jax.jit, "eqx.filter_jit": eqx.filter_jit}[transform](case.fn)
+    assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(fn(good)))
+    # The exception class depends on the transform and on how JAX reports callback errors
+    # (EquinoxRuntimeError, JaxRuntimeError, ...); what must survive is the message.
+    with pytest.raises(Exception) as info:
+        jax.block_until_ready(fn(bad_))
+    assert re.search(case.match, str(info.value), re.S)
+
+
+def test_diverging_simulation_is_refused_only_when_it_overflows():
+    # A short record of an unstable model is a valid (large) result; only inf/NaN is refused.
+    y = hbjax.simulate(UNSTABLE, np.full(100, H_M))
+    assert np.all(np.isfinite(y)) and np.abs(y[-1]) > 1e10
+
+
+def test_check_model_accepts_increasing_and_decreasing_backlash():
+    D.check_model(M, assumptions=True)
+    decreasing = model_with(c1=[1.0, -0.9, 0.0], c2=[-1.0, -0.9, 0.0])
+    D.check_model(decreasing, assumptions=True)
+
+
+# ----------------------------------------------------------------------------- the README table
+
+
+def coverage_counts() -> tuple[Counter, int, int]:
+    return Counter(c.kind for c in CASES), len(PROMOTED), len(TRACED)
+
+
+def coverage_markdown() -> str:
+    kinds, promoted, traced = coverage_counts()
+    targets: dict[str, set] = {}
+    for c in CASES:
+        name = "CLI" if c.target.startswith("hbjax") else c.target.split(".")[0]
+        targets.setdefault(c.kind, set()).add(name)
+    lines = ["| bad-input class | refused cases | entry points |", "|---|---:|---|"]
+    for kind, n in kinds.items():
+        lines.append(f"| {kind} | {n} | {', '.join(sorted(targets[kind]))} |")
+    lines.append(f"| **total refused** | **{sum(kinds.values())}** | |")
+    lines += [
+        "",
+        f"Accepted and promoted to float64 (result bitwise equal to the float64 call): "
+        f"{promoted} cases. Value checks inside `jax.jit`, `eqx.filter_jit` and `jax.vmap` "
+        f"(`eqx.error_if`, message kept): {traced} checks x 3 transforms.",
+    ]
+    return "\n".join(lines)
+
+
+README = pathlib.Path(__file__).with_name("README.md")
+BEGIN, END = "<!-- robustness-table:begin -->", "<!-- robustness-table:end -->"
+
+
+def test_readme_counts_are_current():
+    text = README.read_text()
+    assert BEGIN in text and END in text
+    current = text.split(BEGIN)[1].split(END)[0].strip()
+    assert current == coverage_markdown(), "run `python tests/test_robustness.py` to update"
+
+
+def _write_readme():
+    text = README.read_text()
+    head, rest = text.split(BEGIN)
+    _, tail = rest.split(END)
+    README.write_text(f"{head}{BEGIN}\n{coverage_markdown()}\n{END}{tail}")
+
+
+if __name__ == "__main__":
+    sys.exit(_write_readme())
