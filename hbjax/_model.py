@@ -45,6 +45,8 @@ def lagged(x: Float[Array, " time"], lag: int) -> Float[Array, " time"]:
     """``x(t - lag)`` with ``x(t) = 0`` for ``t < 0`` (the zero initial conditions)."""
     if lag == 0:
         return x
+    if lag >= x.shape[0]:  # a record shorter than the lag sees only initial conditions
+        return jnp.zeros_like(x)
     return jnp.concatenate([jnp.zeros(lag, x.dtype), x[:-lag]])
 
 
