@@ -160,13 +160,15 @@ class _Outcome:
         self.model, self.result = model, result
 
 
-def _one_realisation(model, design, length, noise_std, noise, draw, estimator):
-    """``key -> (theta, code)`` for one realisation of the three experiments."""
+def _one_realisation(design, length, noise, draw, estimator):
+    """``(model, noise_std, key) -> (theta, code)`` for one realisation of the three
+    experiments; the model and noise level are arguments so that one compiled chunk
+    serves every study with the same structure (see `_chunk_executable`)."""
     v = jnp.asarray(np.stack([design.constant_input(length), design.binary_input(length),
                               design.staircase_input(length)]))
-    simulate = jax.vmap(model.simulate_trajectory, in_axes=(0, 0, None))
 
-    def one(key):
+    def one(model, noise_std, key):
+        simulate = jax.vmap(model.simulate_trajectory, in_axes=(0, 0, None))
         e = noise_std * jax.vmap(draw)(jax.random.split(key, 3))
         if noise == "output":
             # The noise-free part does not depend on the key, so vmap computes it once.
@@ -185,6 +187,40 @@ def _one_realisation(model, design, length, noise_std, noise, draw, estimator):
         return theta, code
 
     return one
+
+
+# Compiled chunk executables, keyed by everything that shapes the program (not the values
+# of the model parameters or the noise level): repeated studies do not recompile.
+_EXECUTABLES: dict = {}
+_MAX_EXECUTABLES = 16
+
+
+def _chunk_executable(model, design, length, noise, draw, estimator, step, sharding, key_dtype):
+    """The jitted, sharded ``vmap`` of one realisation over a chunk of ``step`` keys, and
+    the seconds its compilation took (0 when reused)."""
+    leaves, treedef = jax.tree_util.tree_flatten(model)
+    cache_key = (treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves), design,
+                 length, noise, estimator, step, sharding, key_dtype)
+    try:
+        hit = _EXECUTABLES.get(cache_key)
+    except TypeError:  # an unhashable user callable: compile every time
+        cache_key, hit = None, None
+    if hit is not None:
+        return hit, 0.0
+    one = _one_realisation(design, length, noise, draw, estimator)
+    replicated = NamedSharding(sharding.mesh, PartitionSpec())
+    batched = jax.jit(jax.vmap(one, in_axes=(None, None, 0)),
+                      in_shardings=(replicated, replicated, sharding),
+                      out_shardings=(sharding, sharding))
+    t0 = time.perf_counter()
+    key_spec = jax.ShapeDtypeStruct((step,), key_dtype, sharding=sharding)
+    compiled = batched.lower(model, jnp.float64(0.0), key_spec).compile()
+    seconds = time.perf_counter() - t0
+    if cache_key is not None:
+        if len(_EXECUTABLES) >= _MAX_EXECUTABLES:
+            _EXECUTABLES.pop(next(iter(_EXECUTABLES)))
+        _EXECUTABLES[cache_key] = compiled
+    return compiled, seconds
 
 
 def _resolve_devices(devices):
@@ -261,7 +297,8 @@ def monte_carlo(
       ``y``) or a callable ``(key, length) -> record (length,)`` used as the equation error
       ``xi`` (times `noise_std`), e.g. AR(1) coloured noise.
     - `chunk_size`: realisations per device per chunk (default: about ``2**22 / N``), the
-      memory bound; a chunk runs ``chunk_size * n_devices`` realisations at once.
+      memory bound; a chunk runs ``chunk_size * n_devices`` realisations at once (at
+      least 2 per device; the last chunk is padded).
     - `progress`: tqdm bar over chunks (only on a terminal or in a notebook).
     - `devices`: devices to shard realisations over (default: all, ``jax.devices()``).
       Results are bitwise identical for any number of devices.
@@ -289,25 +326,25 @@ def monte_carlo(
 
     n_dev = len(devices)
     sharding = NamedSharding(Mesh(np.array(devices), (_AXIS,)), PartitionSpec(_AXIS))
+    # At least 2 per device: XLA compiles a batch of one to different code (it drops the
+    # unit axis), whose rounding would differ from the same realisation in a larger batch.
     per_device = {
-        n: min(chunk_size or max(1, _CHUNK_SAMPLES // n), -(-realisations // n_dev))
+        n: max(2, min(chunk_size or _CHUNK_SAMPLES // n, -(-realisations // n_dev)))
         for n in lengths
     }
     n_chunks = {n: -(-realisations // (per_device[n] * n_dev)) for n in lengths}
+    replicated = NamedSharding(sharding.mesh, PartitionSpec())
+    model_r = jax.device_put(model, replicated)
+    std_r = jax.device_put(jnp.float64(noise_std), replicated)
     bar = _progress(sum(n_chunks.values()), progress)
     estimates = np.empty((len(lengths), realisations, true.size))
     codes = np.empty((len(lengths), realisations), np.int32)
     compile_s, run_s = np.zeros(len(lengths)), np.zeros(len(lengths))
     try:
         for i, n in enumerate(lengths):
-            one = _one_realisation(model, design, n, noise_std, noise, draws[n], estimator_fn)
             step = per_device[n] * n_dev
-            batched = jax.jit(jax.vmap(one), in_shardings=sharding,
-                              out_shardings=(sharding, sharding))
-            t0 = time.perf_counter()
-            spec = jax.ShapeDtypeStruct((step,), key.dtype, sharding=sharding)
-            compiled = batched.lower(spec).compile()
-            compile_s[i] = time.perf_counter() - t0
+            compiled, compile_s[i] = _chunk_executable(
+                model, design, n, noise, draws[n], estimator_fn, step, sharding, key.dtype)
             key_n = jax.random.fold_in(key, n)
             t0 = time.perf_counter()
             pending = []
@@ -316,7 +353,8 @@ def monte_carlo(
                 idx = np.arange(c * step, (c + 1) * step)
                 keys = jax.device_put(jax.vmap(jax.random.fold_in, (None, 0))(key_n, idx),
                                       sharding)
-                pending.append((idx, compiled(keys)))  # async: the next chunk is queued
+                # Dispatch is asynchronous: the next chunk is queued while this one runs.
+                pending.append((idx, compiled(model_r, std_r, keys)))
                 if len(pending) > 1:
                     _collect(pending.pop(0), estimates[i], codes[i], realisations, bar)
             while pending:
