@@ -122,13 +122,14 @@ class Case:
     call: Callable  # call(tmp) -> must raise
     exc: type
     match: str  # regular expression searched in the message
+    xfail: str | None = None  # a known gap in another module, reported for fixing
 
 
 CASES: list[Case] = []
 
 
-def bad(kind, target, exc, match, call):
-    CASES.append(Case(kind, target, call, exc, match))
+def bad(kind, target, exc, match, call, xfail=None):
+    CASES.append(Case(kind, target, call, exc, match, xfail))
 
 
 WRONG_TYPE = "wrong type (not a model/design/recording, strings)"
@@ -299,6 +300,47 @@ bad(UNSTABLE_A, "identify_giri", ValueError, "the estimated A is unstable \\(ass
 # --- crossing branches
 bad(CROSS, "GiriDesign.check_model", ValueError, "branches P1, P2 of `model` cross near v = -3.09", lambda t: D.check_model(CROSSING, assumptions=True))
 
+# --- monte_carlo
+MC = dict(noise_std=0.1, lengths=[40], realisations=2, key=jax.random.key(0), progress=False)
+
+
+def mc(model=M, design=D, **kw):
+    return hbjax.monte_carlo(model, design, **{**MC, **kw})
+
+
+MC_CHECK = "monte_carlo should call design.check_model(model, assumptions=True) before simulating"
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: mc(model=ARX))
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`design` must be an hbjax.GiriDesign", lambda t: mc(design=(2, 3, 4.0)))
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std="0.1"), xfail="monte_carlo accepts a string noise_std (float('0.1'))")
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std=True), xfail="monte_carlo accepts a bool noise_std (True -> 1.0)")
+bad(WRONG_TYPE, "monte_carlo", ValueError, "`estimator` must be 'giri', 'refined' or a callable", lambda t: mc(estimator="mle"))
+bad(WRONG_TYPE, "monte_carlo", ValueError, "`noise` must be 'equation', 'output' or a callable", lambda t: mc(noise="pink"))
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`devices` must be None or a non-empty sequence", lambda t: mc(devices=["cpu"]))
+bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got int", lambda t: mc(key=0))
+bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got NoneType", lambda t: mc(key=None))
+bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got Generator", lambda t: mc(key=np.random.default_rng(0)))
+bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*shape \\(2,\\)", lambda t: mc(key=jax.random.split(jax.random.key(0), 2)))
+bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*dtype float64", lambda t: mc(key=jnp.zeros(2)))
+bad(RANK, "monte_carlo", ValueError, "the `noise` callable must return a float record of shape \\(40,\\)", lambda t: mc(noise=lambda k, n: jnp.zeros((n, 2))))
+bad(LENGTH, "monte_carlo", ValueError, "the `noise` callable must return a float record of shape \\(40,\\)", lambda t: mc(noise=lambda k, n: jnp.zeros(n + 1)))
+bad(EMPTY, "monte_carlo", ValueError, "`lengths` must hold at least one record length", lambda t: mc(lengths=[]))
+bad(NONFINITE, "monte_carlo", ValueError, "`noise_std` must be a finite number >= 0, got nan", lambda t: mc(noise_std=np.nan))
+bad(NONFINITE, "monte_carlo", TypeError, "`lengths` must be an integer, got nan", lambda t: mc(lengths=[np.nan]))
+bad(DTYPE, "monte_carlo", ValueError, "must return a float record.*dtype int", lambda t: mc(noise=lambda k, n: jnp.zeros(n, int)))
+bad(ORDER, "monte_carlo", ValueError, "`realisations` must be an integer >= 1, got -3", lambda t: mc(realisations=-3))
+bad(ORDER, "monte_carlo", TypeError, "`realisations` must be an integer, got 2.0", lambda t: mc(realisations=2.0))
+bad(ORDER, "monte_carlo", TypeError, "`lengths` must be an integer, got 100.5", lambda t: mc(lengths=[100.5]))
+bad(ORDER, "monte_carlo", ValueError, "`lengths` must be distinct", lambda t: mc(lengths=[40, 40]))
+bad(ORDER, "monte_carlo", ValueError, "`chunk_size` must be an integer >= 1, got 0", lambda t: mc(chunk_size=0))
+bad(SHORT, "monte_carlo", ValueError, "`lengths` \\[17\\] are shorter than one period of v3", lambda t: mc(lengths=[17]))
+bad(NONFINITE, "monte_carlo", ValueError, "`noise_std` must be a finite number >= 0, got -1", lambda t: mc(noise_std=-1.0))
+bad(COEF, "monte_carlo", ValueError, "orders na=1, nb=2, m=3 but the design expects", lambda t: mc(model=model_with(a=[0.5])), xfail=MC_CHECK + " (now: a NumPy broadcast error)")
+bad(COEF, "monte_carlo", ValueError, "orders na=2, nb=2, m=2 but the design expects", lambda t: mc(model=model_with(c1=[0.0, 1.0], c2=[1.0, 1.0])), xfail=MC_CHECK + " (now: a NumPy broadcast error)")
+bad(UNSTABLE_A, "monte_carlo", ValueError, "`model` has an unstable A", lambda t: mc(model=UNSTABLE), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
+bad(GAIN, "monte_carlo", ValueError, "`model` has B\\(1\\) = 0", lambda t: mc(model=ZERO_GAIN), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
+bad(CROSS, "monte_carlo", ValueError, "branches P1, P2 of `model` cross", lambda t: mc(model=CROSSING), xfail=MC_CHECK + " (now: statistics against a truth the estimator cannot see)")
+bad(MU, "monte_carlo", ValueError, "v = \\+h_m does not put the output on P1", lambda t: mc(design=SMALL_H), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
+
 # --- files
 bad(FILES, "load_model", FileNotFoundError, "model file .*missing.json' does not exist", lambda t: hbjax.load_model(t / "missing.json"))
 bad(FILES, "load_model", ModelFileError, "not a valid JSON model file", lambda t: hbjax.load_model(text_file(t, "m.json", model_file(t).read_text()[:200])))
@@ -326,6 +368,9 @@ bad(CLI, "hbjax signals", CLIError, "exit 2: .*--samples: invalid int value", la
 bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--noise-std must be >= 0", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", t / "y.csv", "--noise-std", -1))
 bad(CLI, "hbjax simulate", CLIError, "exit 1: .*not finite\\) at row 3", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\ninf\n"), "--out", t / "y.csv"))
 bad(CLI, "hbjax simulate", CLIError, "exit 1: .*already exists", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", model_file(t)))
+bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*unknown config keys \\['sigma'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"sigma": 1, "noise_std": 0.1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
+bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*missing config keys \\['realisations'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [40]}'), "--out", t / "s.json", "--no-progress"))
+bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*`noise_std` must be a finite number >= 0", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": -1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
 bad(CLI, "hbjax identify giri", CLIError, "exit 1: .*`y\\d` has \\d+ samples; it must cover at least", lambda t: cli("identify", "giri", "--design", "n=2,m=3,h_m=4", *[text_file(t, f"y{k}.csv", "y\n1\n2\n3\n") for k in (1, 2, 3)], "--out", t / "m2.json"))
 
 
@@ -389,7 +434,15 @@ TRACED = [
 # ----------------------------------------------------------------------------- tests
 
 
-@pytest.mark.parametrize("case", CASES, ids=[f"{c.target}-{i}" for i, c in enumerate(CASES)])
+def _params(cases):
+    return [
+        pytest.param(c, id=f"{c.target}-{i}",
+                     marks=[pytest.mark.xfail(reason=c.xfail, strict=True)] if c.xfail else [])
+        for i, c in enumerate(cases)
+    ]
+
+
+@pytest.mark.parametrize("case", _params(CASES))
 def test_bad_input_is_refused_with_a_clear_message(case, tmp_path):
     with pytest.raises(case.exc) as info:
         case.call(tmp_path)
@@ -443,6 +496,118 @@ def test_check_model_accepts_increasing_and_decreasing_backlash():
     D.check_model(decreasing, assumptions=True)
 
 
+# ----------------------------------------------------------------------------- failure isolation
+
+
+def test_monte_carlo_reports_singular_realisations_and_finishes_the_rest():
+    from hbjax._giri import SINGULAR_LS, estimate_giri
+
+    def sometimes_singular(design, y1, y2, y3):
+        # y1(0) = xi(0) (v1(0) = 0, zero initial conditions): where it is positive the v2
+        # record is lost, the two lagged-y columns of (26) are constant and equal.
+        return estimate_giri(design, y1, jnp.where(y1[0] > 0, 0.0, y2), y3)
+
+    kw = dict(noise_std=0.1, lengths=[60, 120], realisations=8, key=jax.random.key(5),
+              progress=False, keep_estimates=True)
+    clean = hbjax.monte_carlo(M, D, **kw)
+    mixed = hbjax.monte_carlo(M, D, estimator=sometimes_singular, **kw)
+    failed = mixed.codes != 0
+    assert failed.any() and (~failed).any()
+    np.testing.assert_array_equal(mixed.codes[failed], SINGULAR_LS)
+    np.testing.assert_array_equal(mixed.n_failed, failed.sum(axis=1))
+    np.testing.assert_array_equal(mixed.n_valid, (~failed).sum(axis=1))
+    for i in range(2):
+        ok = ~failed[i]
+        np.testing.assert_allclose(mixed.mean[i], mixed.estimates[i, ok].mean(axis=0), rtol=1e-12)
+    # The other realisations are untouched: the clean study's estimates.
+    np.testing.assert_allclose(mixed.estimates[~failed], clean.estimates[~failed], rtol=1e-12, atol=0)
+    assert np.all(np.isfinite(mixed.rmse))
+    assert not np.allclose(mixed.rmse, clean.rmse, rtol=1e-12)  # computed from the rest only
+
+
+# ----------------------------------------------------------------------------- files
+
+
+def _no_temp_files(folder):
+    return [p.name for p in folder.iterdir() if p.name.endswith(".tmp")] == []
+
+
+@pytest.mark.parametrize("step", ["os.replace", "os.link"])
+def test_interrupted_write_leaves_the_old_file_intact(tmp_path, monkeypatch, step):
+    # A failure after the data are written but before the rename that publishes them.
+    import os
+
+    old_model, old_csv = model_file(tmp_path), tmp_path / "r.csv"
+    hbjax.save_recording(old_csv, hbjax.Recording(V, Y))
+    before = {p: p.read_bytes() for p in (old_model, old_csv)}
+
+    def crash(*args, **kwargs):
+        raise OSError("power cut between write and rename")
+
+    monkeypatch.setattr(os, "replace", crash)
+    if step == "os.link":  # (a failing link falls back to replace on file systems without links)
+        monkeypatch.setattr(os, "link", crash)
+    other = hbjax.normalise(M, H_M)
+    with pytest.raises(OSError, match="power cut"):
+        if step == "os.replace":  # overwriting goes through os.replace
+            hbjax.save_model(old_model, other, overwrite=True)
+        else:  # a new file is published with os.link (no clobbering in a race)
+            hbjax.save_model(tmp_path / "new.json", other)
+    with pytest.raises(OSError, match="power cut"):
+        if step == "os.replace":
+            hbjax.save_recording(old_csv, hbjax.Recording(Y, V), overwrite=True)
+        else:
+            hbjax.save_recording(tmp_path / "new.csv", hbjax.Recording(Y, V))
+    with pytest.raises(CLIError, match="exit 1: .*power cut"):
+        if step == "os.replace":
+            cli("simulate", "--model", old_model, "--input", text_file(tmp_path, "v.csv", "v\n1\n"),
+                "--out", old_csv, "--force")
+        else:
+            cli("simulate", "--model", old_model, "--input", text_file(tmp_path, "v.csv", "v\n1\n"),
+                "--out", tmp_path / "new2.csv")
+    monkeypatch.undo()
+    assert {p: p.read_bytes() for p in before} == before
+    assert not (tmp_path / "new.json").exists() and not (tmp_path / "new.csv").exists()
+    assert not (tmp_path / "new2.csv").exists()
+    assert _no_temp_files(tmp_path)
+    assert hbjax.load_model(old_model).arx.b.tobytes() == M.arx.b.tobytes()
+
+
+def test_every_truncation_of_a_model_file_is_refused_clearly(tmp_path):
+    text = model_file(tmp_path).read_text()
+    cuts = sorted(set(np.linspace(0, len(text) - 2, 80).astype(int)))
+    for cut in cuts:
+        p = text_file(tmp_path, "cut.json", text[:cut])
+        with pytest.raises(ModelFileError) as info:
+            hbjax.load_model(p)
+        assert str(p) in str(info.value), (cut, str(info.value))
+
+
+def test_edited_model_files_load_correctly_or_are_refused_clearly(tmp_path):
+    # Random one-character edits: either a valid model comes back (e.g. a digit changed),
+    # or a ModelFileError naming the file; never another exception, never NaN coefficients.
+    text = model_file(tmp_path).read_text()
+    rng = np.random.default_rng(11)
+    alphabet = list('0123456789.-+eE"{}[],: abcnull')
+    outcomes = Counter()
+    for _ in range(300):
+        i = int(rng.integers(len(text)))
+        edited = text[:i] + str(rng.choice(alphabet)) + text[i + 1:]
+        p = text_file(tmp_path, "edit.json", edited)
+        try:
+            model = hbjax.load_model(p)
+        except ModelFileError as exc:
+            assert str(p) in str(exc)
+            outcomes["refused"] += 1
+            continue
+        assert isinstance(model, hbjax.Hammerstein)
+        for leaf in jax.tree_util.tree_leaves(model):
+            assert leaf.dtype == np.float64 and leaf.ndim == 1 and np.all(np.isfinite(leaf))
+        assert model.backlash.c1.shape == model.backlash.c2.shape
+        outcomes["loaded"] += 1
+    assert outcomes["refused"] > 50 and outcomes["loaded"] > 10
+
+
 # ----------------------------------------------------------------------------- the README table
 
 
@@ -452,14 +617,16 @@ def coverage_counts() -> tuple[Counter, int, int]:
 
 def coverage_markdown() -> str:
     kinds, promoted, traced = coverage_counts()
+    gaps = Counter(c.kind for c in CASES if c.xfail)
     targets: dict[str, set] = {}
     for c in CASES:
         name = "CLI" if c.target.startswith("hbjax") else c.target.split(".")[0]
         targets.setdefault(c.kind, set()).add(name)
-    lines = ["| bad-input class | refused cases | entry points |", "|---|---:|---|"]
+    lines = ["| bad-input class | cases | of which open (xfail) | entry points |",
+             "|---|---:|---:|---|"]
     for kind, n in kinds.items():
-        lines.append(f"| {kind} | {n} | {', '.join(sorted(targets[kind]))} |")
-    lines.append(f"| **total refused** | **{sum(kinds.values())}** | |")
+        lines.append(f"| {kind} | {n} | {gaps[kind]} | {', '.join(sorted(targets[kind]))} |")
+    lines.append(f"| **total** | **{sum(kinds.values())}** | **{sum(gaps.values())}** | |")
     lines += [
         "",
         f"Accepted and promoted to float64 (result bitwise equal to the float64 call): "
