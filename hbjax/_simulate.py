@@ -35,9 +35,9 @@ def _guard_params(carrier, model):
     return carrier
 
 
-def _check_output(y, model):
+def _check_output(y, finite, model):
     """Refuse a diverged free run eagerly instead of returning inf/NaN samples."""
-    if is_traced(y) or bool(jnp.all(jnp.isfinite(y))):
+    if is_traced(finite) or bool(finite):
         return y
     first = int(np.flatnonzero(~np.isfinite(np.asarray(y)))[0])
     why = "the model diverges"
@@ -64,7 +64,9 @@ def _play(backlash, v, u0):
 
 @eqx.filter_jit
 def _simulate(model, v, noise, u0):
-    return model.simulate_trajectory(v, noise, u0)
+    y = model.simulate_trajectory(v, noise, u0)
+    # Fused with the scan: the eager divergence check costs no extra pass over y.
+    return y, jnp.all(jnp.isfinite(y))
 
 
 @eqx.filter_jit
@@ -116,7 +118,7 @@ def simulate(model: AbstractModel, v, noise=None, *, u0=0.0) -> Float[Array, " t
         noise = signal(noise, "noise", finite=False)
         same_length(v=v, noise=noise)
     u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v, noise=noise), model)
-    return _check_output(_simulate(model, v, noise, u0), model)
+    return _check_output(*_simulate(model, v, noise, u0), model)
 
 
 def predict(model: AbstractModel, v, y, *, u0=0.0) -> Float[Array, " time"]:
