@@ -148,6 +148,7 @@ MU = "mu = 0 / swing does not cross the gap (A4)"
 UNSTABLE_A = "unstable A (assumption A3)"
 CROSS = "branches cross inside the excited range"
 KEY = "wrong key type"
+OPTION = "unknown option or name"
 FILES = "files: missing, corrupted, existing, bad folder"
 CLI = "command line"
 
@@ -313,8 +314,8 @@ bad(WRONG_TYPE, "monte_carlo", TypeError, "`model` must be an hbjax.Hammerstein"
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`design` must be an hbjax.GiriDesign", lambda t: mc(design=(2, 3, 4.0)))
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std="0.1"), xfail="monte_carlo accepts a string noise_std (float('0.1'))")
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std=True), xfail="monte_carlo accepts a bool noise_std (True -> 1.0)")
-bad(WRONG_TYPE, "monte_carlo", ValueError, "`estimator` must be 'giri', 'refined' or a callable", lambda t: mc(estimator="mle"))
-bad(WRONG_TYPE, "monte_carlo", ValueError, "`noise` must be 'equation', 'output' or a callable", lambda t: mc(noise="pink"))
+bad(OPTION, "monte_carlo", ValueError, "`estimator` must be 'giri', 'refined' or a callable", lambda t: mc(estimator="mle"))
+bad(OPTION, "monte_carlo", ValueError, "`noise` must be 'equation', 'output' or a callable", lambda t: mc(noise="pink"))
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`devices` must be None or a non-empty sequence", lambda t: mc(devices=["cpu"]))
 bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got int", lambda t: mc(key=0))
 bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got NoneType", lambda t: mc(key=None))
@@ -340,6 +341,10 @@ bad(UNSTABLE_A, "monte_carlo", ValueError, "`model` has an unstable A", lambda t
 bad(GAIN, "monte_carlo", ValueError, "`model` has B\\(1\\) = 0", lambda t: mc(model=ZERO_GAIN), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
 bad(CROSS, "monte_carlo", ValueError, "branches P1, P2 of `model` cross", lambda t: mc(model=CROSSING), xfail=MC_CHECK + " (now: statistics against a truth the estimator cannot see)")
 bad(MU, "monte_carlo", ValueError, "v = \\+h_m does not put the output on P1", lambda t: mc(design=SMALL_H), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
+
+# --- bundled data sets
+bad(OPTION, "datasets.brfd", ValueError, "unknown BRFD record `name` 'nope'; valid names: .*1Hz30lbtension1amplitude", lambda t: hbjax.datasets.brfd("nope"))
+bad(OPTION, "datasets.brfd", ValueError, "unknown BRFD record `name` None", lambda t: hbjax.datasets.brfd(None))
 
 # --- files
 bad(FILES, "load_model", FileNotFoundError, "model file .*missing.json' does not exist", lambda t: hbjax.load_model(t / "missing.json"))
