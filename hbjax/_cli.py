@@ -66,19 +66,35 @@ def _parse_design(text: str):
         raise ValueError(f"--design {text!r}: {exc}") from None
 
 
-def _describe_model(model) -> str:
+def _describe_model(model, indent: str = "  ") -> str:
+    """Parameters of a model: the Hammerstein blocks by name, other fields generically."""
+    import dataclasses
+
+    import jax
     import numpy as np
 
     from ._model import Hammerstein
 
-    if not isinstance(model, Hammerstein):
-        return repr(model)
-    fmt = lambda x: np.array2string(np.asarray(x), precision=6, separator=", ")  # noqa: E731
-    return (
-        f"  a  = {fmt(model.arx.a)}\n  b  = {fmt(model.arx.b)}\n"
-        f"  c1 = {fmt(model.backlash.c1)}  (P1, ascending powers)\n"
-        f"  c2 = {fmt(model.backlash.c2)}  (P2, ascending powers)"
-    )
+    def fmt(x):
+        return np.array2string(np.asarray(x), precision=6, separator=", ")
+
+    if isinstance(model, Hammerstein):
+        return (
+            f"{indent}a  = {fmt(model.arx.a)}\n{indent}b  = {fmt(model.arx.b)}\n"
+            f"{indent}c1 = {fmt(model.backlash.c1)}  (P1, ascending powers)\n"
+            f"{indent}c2 = {fmt(model.backlash.c2)}  (P2, ascending powers)"
+        )
+    lines = []
+    for f in dataclasses.fields(model):
+        value = getattr(model, f.name)
+        if isinstance(value, Hammerstein):
+            lines.append(f"{indent}{f.name}: Hammerstein")
+            lines.append(_describe_model(value, indent + "  "))
+        elif isinstance(value, (jax.Array, np.ndarray)):
+            lines.append(f"{indent}{f.name} = {fmt(value)}")
+        else:
+            lines.append(f"{indent}{f.name} = {value!r}")
+    return "\n".join(lines)
 
 
 # ----------------------------------------------------------------------------- commands
@@ -233,7 +249,6 @@ def _jsonable(value):
 
 def _cmd_montecarlo(args) -> int:
     import dataclasses
-    import io
     import os
 
     import jax
@@ -270,11 +285,67 @@ def _cmd_montecarlo(args) -> int:
         import matplotlib
 
         matplotlib.use("Agg")
-        fig = study.plot()
-        buf = io.BytesIO()
-        fig.savefig(buf, format=os.path.splitext(args.plot)[1].lstrip(".") or "png", dpi=120)
-        atomic_write(args.plot, buf.getvalue(), overwrite=args.force)
-        print(f"wrote {args.plot}")
+        _write_figure(args.plot, study.plot(), overwrite=args.force)
+    return 0
+
+
+def _write_figure(path, fig, *, overwrite):
+    import io
+    import os
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format=os.path.splitext(path)[1].lstrip(".") or "png", dpi=120)
+    from ._io import atomic_write
+
+    atomic_write(path, buf.getvalue(), overwrite=overwrite)
+    print(f"wrote {path}")
+
+
+def _cmd_diagnose(args) -> int:
+    import os
+
+    from . import __version__
+    from ._diagnose import diagnose
+    from ._io import atomic_write
+    from ._model import Hammerstein
+    from ._modelfile import load_model, pretty_json, save_model
+
+    for out in (args.json, args.plot, args.save_model):  # refuse before the long part
+        if out is not None and os.path.exists(out) and not args.force:
+            raise FileExistsError(f"{out!r} already exists; pass --force to replace it.")
+    model = load_model(args.model)
+    if not isinstance(model, Hammerstein):
+        raise ValueError(f"{args.model}: diagnose needs the nominal hbjax.Hammerstein model, "
+                         f"got {type(model).__name__}.")
+    rec = _read_recording(args.recording, args)
+    effects = None
+    if args.effects:
+        effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+    report = diagnose(model, rec.v, rec.y, holdout=args.holdout, effects=effects)
+    print(f"{rec.source}: {len(rec)} samples, nominal model {args.model}")
+    print(report.summary())
+    if args.json is not None:
+        doc = {"format": "hbjax-diagnosis", "hbjax_version": __version__,
+               "model": args.model, "recording": rec.source, "report": report.to_dict()}
+        atomic_write(args.json, pretty_json(doc) + "\n", overwrite=args.force)
+        print(f"wrote {args.json}")
+    if args.save_model is not None:
+        if report.best is None:
+            print(f"no finding: {args.save_model} not written")
+        else:
+            save_model(args.save_model, report.best.model, overwrite=args.force)
+            print(f"wrote {args.save_model} ({type(report.best.model).__name__})")
+    if args.plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        from ._plot_diagnosis import plot_diagnosis
+
+        fig, axes = plt.subplots(3, 1, figsize=(9, 9), layout="constrained")
+        plot_diagnosis(report, axes=axes)
+        _write_figure(args.plot, fig, overwrite=args.force)
     return 0
 
 
@@ -422,6 +493,30 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--no-progress", action="store_true", help="no progress bar")
     mc.add_argument("--force", action="store_true", help="overwrite --out/--plot if they exist")
     mc.set_defaults(func=_cmd_montecarlo)
+
+    diag = _add_command(
+        sub, "diagnose", parents=[debug],
+        help="what does the nominal model leave out of a recording? (hbjax.diagnose)",
+        description="Compare a recording of the real system with the nominal model, locate "
+        "and name the structured mismatch (saturations, delays, drifts, unmodelled dynamics, "
+        "...) and print the readable report; optionally write it as JSON, plot it and save "
+        "the extended model of the best finding as a model file.\n\n" + _EPILOG_RECORDINGS,
+        example="hbjax diagnose --model model.json rec.csv --json report.json --plot report.png",
+    )
+    diag.add_argument("--model", required=True, help="nominal model file (a Hammerstein)")
+    diag.add_argument("recording", help="CSV recording of the real system")
+    diag.add_argument("--input", default=None, help="input column (default: the first)")
+    diag.add_argument("--output", default=None, help="output column (default: the second)")
+    diag.add_argument("--holdout", type=float, default=0.3,
+                      help="final fraction of the record kept out of every fit (default 0.3)")
+    diag.add_argument("--effects", default=None,
+                      help="comma-separated effect names to consider (default: all)")
+    diag.add_argument("--json", default=None, help="write the report as JSON")
+    diag.add_argument("--plot", default=None, help="write the report figure (.png, .pdf, .svg)")
+    diag.add_argument("--save-model", default=None,
+                      help="write the extended model of the best finding (model file)")
+    diag.add_argument("--force", action="store_true", help="overwrite output files")
+    diag.set_defaults(func=_cmd_diagnose)
 
     show = _add_command(
         sub, "show", parents=[debug],
