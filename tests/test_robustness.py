@@ -512,7 +512,7 @@ def test_monte_carlo_reports_singular_realisations_and_finishes_the_rest():
         # record is lost, the two lagged-y columns of (26) are constant and equal.
         return estimate_giri(design, y1, jnp.where(y1[0] > 0, 0.0, y2), y3)
 
-    kw = dict(noise_std=0.1, lengths=[60, 120], realisations=8, key=jax.random.key(5),
+    kw = dict(noise_std=0.1, lengths=[60], realisations=8, key=jax.random.key(5),
               progress=False, keep_estimates=True)
     clean = hbjax.monte_carlo(M, D, **kw)
     mixed = hbjax.monte_carlo(M, D, estimator=sometimes_singular, **kw)
@@ -521,9 +521,8 @@ def test_monte_carlo_reports_singular_realisations_and_finishes_the_rest():
     np.testing.assert_array_equal(mixed.codes[failed], SINGULAR_LS)
     np.testing.assert_array_equal(mixed.n_failed, failed.sum(axis=1))
     np.testing.assert_array_equal(mixed.n_valid, (~failed).sum(axis=1))
-    for i in range(2):
-        ok = ~failed[i]
-        np.testing.assert_allclose(mixed.mean[i], mixed.estimates[i, ok].mean(axis=0), rtol=1e-12)
+    ok = ~failed[0]
+    np.testing.assert_allclose(mixed.mean[0], mixed.estimates[0, ok].mean(axis=0), rtol=1e-12)
     # The other realisations are untouched: the clean study's estimates.
     np.testing.assert_allclose(mixed.estimates[~failed], clean.estimates[~failed], rtol=1e-12, atol=0)
     assert np.all(np.isfinite(mixed.rmse))
