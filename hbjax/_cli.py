@@ -349,6 +349,36 @@ def _cmd_diagnose(args) -> int:
     return 0
 
 
+def _cmd_identify_fit(args) -> int:
+    import os
+
+    import jax
+    import numpy as np
+
+    from ._fit import fit
+    from ._modelfile import save_model
+
+    if os.path.exists(args.out) and not args.force:  # refuse before the long part
+        raise FileExistsError(f"{args.out!r} already exists; pass --force to replace it.")
+    records = [_read_recording(path, args) for path in args.records]
+    options = {} if args.max_steps is None else {"max_steps": args.max_steps}
+    result = fit(
+        [(r.v, r.y) for r in records], na=args.na, nb=args.nb, m=args.m,
+        key=jax.random.key(args.seed), starts=args.starts, criterion=args.criterion, **options,
+    )
+    save_model(args.out, result.model, overwrite=args.force)
+    samples = sum(len(r) for r in records)
+    print(f"identified (na, nb, m) = ({args.na}, {args.nb}, {args.m}) from {len(records)} "
+          f"recording(s), {samples} samples; normalisation B(1) = 1:")
+    print(_describe_model(result.model))
+    std = np.asarray(result.std)
+    print(f"  standard errors (a, b, c1, c2) = {np.array2string(std, precision=3, separator=', ')}")
+    print(f"  noise std = {float(result.noise_std):.4g}; {args.starts} starts, "
+          f"{float(result.hit_rate):.0%} reached the best cost; {result.message}")
+    print(f"wrote {args.out}")
+    return 0
+
+
 def _cmd_show(args) -> int:
     from ._modelfile import load_model
 
@@ -450,7 +480,7 @@ def build_parser() -> argparse.ArgumentParser:
         sub, "identify", parents=[debug],
         help="identify a model from recordings",
         description="Identification methods: `giri` (the paper's closed form on its three "
-        "experiments).",
+        "experiments) and `fit` (multi-start prediction-error fit on any recordings).",
         example="hbjax identify giri --design n=2,m=3,h_m=4 y1.csv y2.csv y3.csv --out model.json",
     )
     methods = identify.add_subparsers(dest="method", required=True, metavar="METHOD")
@@ -517,6 +547,35 @@ def build_parser() -> argparse.ArgumentParser:
                       help="write the extended model of the best finding (model file)")
     diag.add_argument("--force", action="store_true", help="overwrite output files")
     diag.set_defaults(func=_cmd_diagnose)
+
+    fitp = _add_command(
+        methods, "fit", parents=[debug],
+        help="multi-start prediction-error fit on ordinary recordings (hbjax.fit)",
+        description="Identify an HB-Hammerstein model of orders (na, nb, m) from one or more "
+        "recordings with any input (steps, multisines, random levels), by multi-start "
+        "Levenberg-Marquardt; the model is normalised so that B(1) = 1.\n\n"
+        + _EPILOG_RECORDINGS,
+        example=[
+            "hbjax identify fit --na 2 --nb 2 --m 3 rec.csv --out model.json",
+            "hbjax identify fit --na 2 --nb 2 --m 3 a.csv b.csv --input drive --output level "
+            "--starts 64 --out model.json",
+        ],
+    )
+    fitp.add_argument("records", nargs="+", metavar="REC.csv", help="recordings (input, output)")
+    fitp.add_argument("--na", type=int, required=True, help="order of A")
+    fitp.add_argument("--nb", type=int, required=True, help="order of B")
+    fitp.add_argument("--m", type=int, required=True, help="coefficients per branch (degree + 1)")
+    fitp.add_argument("--input", default=None, help="input column (default: the first)")
+    fitp.add_argument("--output", default=None, help="output column (default: the second)")
+    fitp.add_argument("--starts", type=int, default=32, help="random starts (default 32)")
+    fitp.add_argument("--seed", type=int, default=0, help="PRNG seed of the starts")
+    fitp.add_argument("--criterion", choices=("prediction", "simulation"), default="prediction",
+                      help="one-step prediction error (default) or free-run simulation error")
+    fitp.add_argument("--max-steps", type=int, default=None,
+                      help="Levenberg-Marquardt steps per start (default: hbjax.fit's)")
+    fitp.add_argument("--out", required=True, help="model file to write (JSON)")
+    fitp.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    fitp.set_defaults(func=_cmd_identify_fit)
 
     show = _add_command(
         sub, "show", parents=[debug],
