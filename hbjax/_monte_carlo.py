@@ -162,8 +162,8 @@ class _Outcome:
         self.model, self.result = model, result
 
 
-def _chunk_fn(design, length, noise, draw, estimator):
-    """``(model, noise_std, keys) -> (theta (B, P), code (B,))`` for a chunk of realisations
+def _chunk_fn(design, length, noise, draw, estimator, impl):
+    """``(model, noise_std, key_data) -> (theta (B, P), code (B,))`` for a chunk of realisations
     of the three experiments. The model and noise level are arguments so that one compiled
     chunk serves every study with the same structure (see `_chunk_executable`)."""
     v = jnp.asarray(np.stack([design.constant_input(length), design.binary_input(length),
@@ -189,7 +189,8 @@ def _chunk_fn(design, length, noise, draw, estimator):
         code = jnp.where((code == 0) & ~jnp.all(jnp.isfinite(theta)), NONFINITE, code)
         return theta, code
 
-    def chunk(model, noise_std, keys):
+    def chunk(model, noise_std, key_data):
+        keys = jax.random.wrap_key_data(key_data, impl=impl)
         # Two vmaps rather than one: the simulation scans over time-major arrays (one
         # realisation per lane), and out_axes=0 hands the estimator realisation-major
         # records, whose reductions over time run about twice as fast on CPU.
@@ -205,25 +206,26 @@ _EXECUTABLES: dict = {}
 _MAX_EXECUTABLES = 16
 
 
-def _chunk_executable(model, design, length, noise, draw, estimator, step, sharding, key_dtype):
+def _chunk_executable(model, design, length, noise, draw, estimator, step, sharding, key):
     """The jitted, sharded ``vmap`` of one realisation over a chunk of ``step`` keys, and
     the seconds its compilation took (0 when reused)."""
     leaves, treedef = jax.tree_util.tree_flatten(model)
     cache_key = (treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves), design,
-                 length, noise, estimator, step, sharding, key_dtype)
+                 length, noise, estimator, step, sharding, key.dtype)
     try:
         hit = _EXECUTABLES.get(cache_key)
     except TypeError:  # an unhashable user callable: compile every time
         cache_key, hit = None, None
     if hit is not None:
         return hit, 0.0
-    chunk = _chunk_fn(design, length, noise, draw, estimator)
+    chunk = _chunk_fn(design, length, noise, draw, estimator, jax.random.key_impl(key))
     replicated = NamedSharding(sharding.mesh, PartitionSpec())
     batched = jax.jit(chunk,
                       in_shardings=(replicated, replicated, sharding),
                       out_shardings=(sharding, sharding))
     t0 = time.perf_counter()
-    key_spec = jax.ShapeDtypeStruct((step,), key_dtype, sharding=sharding)
+    data = jax.random.key_data(key)
+    key_spec = jax.ShapeDtypeStruct((step,) + data.shape, data.dtype, sharding=sharding)
     compiled = batched.lower(model, jnp.float64(0.0), key_spec).compile()
     seconds = time.perf_counter() - t0
     if cache_key is not None:
@@ -258,6 +260,12 @@ def _progress(total, enabled):
     from tqdm import tqdm  # the text bar also renders in notebooks (no ipywidgets needed)
 
     return tqdm(total=total, desc="monte carlo", unit="chunk", file=sys.stderr)
+
+
+def _global_array(host, sharding):
+    """A (possibly multi-process) array from a host array every process holds identically:
+    each process fills only its own devices' shards (works with jax.distributed)."""
+    return jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
 
 
 def _to_host(x):
@@ -345,8 +353,8 @@ def monte_carlo(
     }
     n_chunks = {n: -(-realisations // (per_device[n] * n_dev)) for n in lengths}
     replicated = NamedSharding(sharding.mesh, PartitionSpec())
-    model_r = jax.device_put(model, replicated)
-    std_r = jax.device_put(jnp.float64(noise_std), replicated)
+    model_r = jax.tree_util.tree_map(lambda x: _global_array(np.asarray(x), replicated), model)
+    std_r = _global_array(np.asarray(noise_std, np.float64), replicated)
     bar = _progress(sum(n_chunks.values()), progress)
     estimates = np.empty((len(lengths), realisations, true.size))
     codes = np.empty((len(lengths), realisations), np.int32)
@@ -355,15 +363,15 @@ def monte_carlo(
         for i, n in enumerate(lengths):
             step = per_device[n] * n_dev
             compiled, compile_s[i] = _chunk_executable(
-                model, design, n, noise, draws[n], estimator_fn, step, sharding, key.dtype)
+                model, design, n, noise, draws[n], estimator_fn, step, sharding, key)
             key_n = jax.random.fold_in(key, n)
             t0 = time.perf_counter()
             pending = []
             for c in range(n_chunks[n]):
                 # Keys depend on (N, r) only: adding realisations or devices keeps old draws.
                 idx = np.arange(c * step, (c + 1) * step)
-                keys = jax.device_put(jax.vmap(jax.random.fold_in, (None, 0))(key_n, idx),
-                                      sharding)
+                keys = jax.vmap(jax.random.fold_in, (None, 0))(key_n, idx)
+                keys = _global_array(np.asarray(jax.random.key_data(keys)), sharding)
                 # Dispatch is asynchronous: the next chunk is queued while this one runs.
                 pending.append((idx, compiled(model_r, std_r, keys)))
                 if len(pending) > 1:
