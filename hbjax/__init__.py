@@ -19,6 +19,9 @@ from ._simulate import play as play, predict as predict, simulate as simulate
 # --- monte carlo (issue 4) ---
 from ._monte_carlo import Study as Study, monte_carlo as monte_carlo
 # --- diagnosis (issue 5) ---
+from ._concealed import ConcealedRecording as ConcealedRecording, concealed_recording as concealed_recording
+from ._diagnose import Diagnosis as Diagnosis, Finding as Finding, diagnose as diagnose
+from ._effects import EFFECTS as EFFECTS
 # --- io, datasets, cli (issue 6) ---
 from . import datasets as datasets
 from ._io import (

@@ -13,3 +13,4 @@ from ._plot_core import (
 # --- monte carlo plots (issue 4) ---
 from ._plot_mc import plot_monte_carlo as plot_monte_carlo
 # --- diagnosis plots (issue 5) ---
+from ._plot_diagnosis import plot_diagnosis as plot_diagnosis

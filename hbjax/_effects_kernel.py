@@ -1,0 +1,355 @@
+"""One simulator for the HB-Hammerstein model with every diagnosis extension at once.
+
+Every effect of the diagnosis library is a term of a single extended model whose neutral
+values (zero coefficients, infinite clip levels, zero delay, change time past the end)
+give back the nominal model of paper eq. (10) exactly. The effect classes of
+:mod:`hbjax._effects` and the diagnosis fits all call :func:`simulate_full` and
+:func:`whiten`, so one compiled function serves every candidate of a base structure
+``(na, nb, m)``; which parameters a candidate may move is data (a selection matrix),
+not structure.
+
+Extended model (all terms together), with ``s(t) = 1[t >= tau]``:
+
+- input path: ``u(t) = HB(P1 + s dP1 + c1x (v/vs)^m, P2 + s dP2 + c2x (v/vs)^m)(v)``,
+  ``u_s = clip(u, in_lo, in_hi)``, delayed by ``d`` extra samples (``u_s(t) = 0`` for
+  ``t < 0``);
+- linear block: ``(A + s dA + ax q^-(na+1)) y_lin = (B + s dB + bx q^-(nb+1)) q^-d u_s + xi_c``
+  with the equation error coloured by ``D(q^-1) xi_c = xi``;
+- output path: ``y = clip(y_lin + drift + sinusoid + g(y_lin) + F_c tanh(du/w), out_lo, out_hi)``.
+
+The prediction error used by every fit is ``eps = D (A_t (y - y_sim))``: for the nominal
+model it is exactly the ARX equation error ``A y - B u`` (zero initial conditions), the
+maximum-likelihood criterion under white Gaussian equation error.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ._backlash import polyval_ascending
+
+#: largest extra delay (samples) the extended simulator can represent
+MAX_DELAY = 12
+
+# consts vector: [v_scale, y_center, y_scale, friction_width]
+N_CONSTS = 4
+
+
+class Layout(NamedTuple):
+    """Where each parameter sits in the flat extended parameter vector ``theta``."""
+
+    na: int
+    nb: int
+    m: int
+
+    @property
+    def p_base(self) -> int:
+        return self.na + self.nb + 2 * self.m
+
+    def slots(self) -> dict[str, tuple[int, int]]:
+        sizes = [
+            ("a", self.na), ("b", self.nb), ("c1", self.m), ("c2", self.m),
+            ("a_extra", 1), ("b_extra", 1), ("c1_extra", 1), ("c2_extra", 1),
+            ("da", self.na), ("db", self.nb), ("dc1", self.m), ("dc2", self.m),
+            ("in_lo", 1), ("in_hi", 1), ("out_lo", 1), ("out_hi", 1),
+            ("drift_offset", 1), ("drift_rate", 1),
+            ("sin_freq", 1), ("sin_cos", 1), ("sin_sin", 1),
+            ("nl2", 1), ("nl3", 1), ("friction", 1), ("noise_d", 2),
+        ]
+        out, k = {}, 0
+        for name, n in sizes:
+            out[name] = (k, k + n)
+            k += n
+        return out
+
+    @property
+    def size(self) -> int:
+        return max(stop for _, stop in self.slots().values())
+
+    def get(self, theta, name):
+        start, stop = self.slots()[name]
+        return theta[start:stop]
+
+    def neutral(self, a, b, c1, c2):
+        """``theta`` of the nominal model: every extension switched off."""
+        theta = jnp.zeros(self.size)
+        for name, val in (("a", a), ("b", b), ("c1", c1), ("c2", c2)):
+            theta = self.put(theta, name, val)
+        theta = self.put(theta, "in_lo", -jnp.inf)
+        theta = self.put(theta, "in_hi", jnp.inf)
+        theta = self.put(theta, "out_lo", -jnp.inf)
+        theta = self.put(theta, "out_hi", jnp.inf)
+        return theta
+
+    def put(self, theta, name, value):
+        start, stop = self.slots()[name]
+        value = jnp.broadcast_to(jnp.asarray(value, theta.dtype), (stop - start,))
+        return theta.at[start:stop].set(value)
+
+
+def _branch(c, dc, cx, s, v, vs, m):
+    return polyval_ascending(c + s * dc, v) + cx * (v / vs) ** m
+
+
+def simulate_full(lay: Layout, theta, ints, consts, v, noise, u0):
+    """Free-run output of the extended model and the (clipped, delayed) internal signal.
+
+    ``ints = [d, tau]`` (extra delay, change time), ``consts = [v_scale, y_center,
+    y_scale, friction_width]``. Returns ``(y, u_used)``, each shape ``(T,)``.
+    """
+    na, nb, m = lay.na, lay.nb, lay.m
+    g = lambda name: lay.get(theta, name)  # noqa: E731
+    a = jnp.concatenate([g("a"), g("a_extra")])
+    b = jnp.concatenate([g("b"), g("b_extra")])
+    da = jnp.concatenate([g("da"), jnp.zeros(1)])
+    db = jnp.concatenate([g("db"), jnp.zeros(1)])
+    c1, c2, dc1, dc2 = g("c1"), g("c2"), g("dc1"), g("dc2")
+    c1x, c2x = g("c1_extra")[0], g("c2_extra")[0]
+    in_lo, in_hi = g("in_lo")[0], g("in_hi")[0]
+    nd = g("noise_d")
+    delay, tau = ints[0], ints[1]
+    vs = consts[0]
+    T = v.shape[0]
+    t_idx = jnp.arange(T)
+    s_all = (t_idx >= tau).astype(v.dtype)
+    zero = jnp.zeros((), v.dtype)
+    buf_len = MAX_DELAY + nb + 2
+
+    def step(carry, inputs):
+        u_play, y_lags, u_buf, xi_lags = carry
+        v_t, xi_t, s = inputs
+        xi_c = xi_t - nd[0] * xi_lags[0] - nd[1] * xi_lags[1]
+        u_del = jax.lax.dynamic_slice(u_buf, (delay,), (nb + 1,))
+        y_t = xi_c
+        for i in range(na + 1):
+            y_t = y_t - (a[i] + s * da[i]) * y_lags[i]
+        for i in range(nb + 1):
+            y_t = y_t + (b[i] + s * db[i]) * u_del[i]
+        p1 = _branch(c1, dc1, c1x, s, v_t, vs, m)
+        p2 = _branch(c2, dc2, c2x, s, v_t, vs, m)
+        u_t = jnp.minimum(jnp.maximum(u_play, jnp.minimum(p1, p2)), jnp.maximum(p1, p2))
+        u_sat = jnp.clip(u_t, in_lo, in_hi)
+        u_buf = jnp.concatenate([u_sat[None], u_buf[:-1]])
+        u_used = jax.lax.dynamic_index_in_dim(u_buf, delay, keepdims=False)
+        return (u_t, (y_t,) + y_lags[:-1], u_buf, (xi_c, xi_lags[0])), (y_t, u_used)
+
+    init = (jnp.asarray(u0, v.dtype), (zero,) * (na + 1), jnp.zeros(buf_len, v.dtype),
+            (zero, zero))
+    _, (y_lin, u_used) = jax.lax.scan(step, init, (v, noise, s_all))
+    return output_path(lay, theta, consts, y_lin, u_used), u_used
+
+
+def output_path(lay: Layout, theta, consts, y_lin, u_used):
+    """Additive and static output-side terms, then the output clip."""
+    g = lambda name: lay.get(theta, name)[0]  # noqa: E731
+    t = jnp.arange(y_lin.shape[0], dtype=y_lin.dtype)
+    y = y_lin + g("drift_offset") + g("drift_rate") * t
+    phase = 2 * math.pi * g("sin_freq") * t
+    y = y + g("sin_cos") * jnp.cos(phase) + g("sin_sin") * jnp.sin(phase)
+    z = (y_lin - consts[1]) / consts[2]
+    y = y + consts[2] * (g("nl2") * z**2 + g("nl3") * z**3)
+    du = u_used - jnp.concatenate([u_used[:1], u_used[:-1]])
+    y = y + g("friction") * jnp.tanh(du / consts[3])
+    return jnp.clip(y, g("out_lo"), g("out_hi"))
+
+
+def _lag(x, k):
+    return jnp.concatenate([jnp.zeros(k, x.dtype), x[:-k]])
+
+
+def whiten(lay: Layout, theta, ints, y, y_sim):
+    """Prediction error ``eps = D(q^-1) A_t(q^-1) (y - y_sim)`` (see module docstring)."""
+    a = jnp.concatenate([lay.get(theta, "a"), lay.get(theta, "a_extra")])
+    da = jnp.concatenate([lay.get(theta, "da"), jnp.zeros(1)])
+    nd = lay.get(theta, "noise_d")
+    s = (jnp.arange(y.shape[0]) >= ints[1]).astype(y.dtype)
+    e = y - y_sim
+    w = e
+    for i in range(lay.na + 1):
+        w = w + (a[i] + s * da[i]) * _lag(e, i + 1)
+    return w + nd[0] * _lag(w, 1) + nd[1] * _lag(w, 2)
+
+
+def prediction_error(lay: Layout, theta, ints, consts, v, y):
+    """``(eps, y_sim, u_used)`` of the extended model on a record (noise-free simulation)."""
+    y_sim, u_used = simulate_full(lay, theta, ints, consts, v, jnp.zeros_like(v), 0.0)
+    return whiten(lay, theta, ints, y, y_sim), y_sim, u_used
+
+
+# --- Fast criterion for fitting --------------------------------------------------------
+#
+# The fits never run the simulator's scan with tangents. Two facts make every derivative a
+# vectorised expression:
+# - the play operator's output is always a branch value at the last sample where the
+#   clamp was active: u(t) = L(v(k)) or H(v(k)). A primal-only scan finds k(t) and the
+#   side; u is then a gather of branch values, differentiable in the branch coefficients;
+# - with y_lin = (B/A) u the prediction error D A (y - y_sim) equals
+#   D [A (y - d - g) - B u], where d are the additive output terms and g the deviation of
+#   the static output map (clip, curvature) from the identity; only g needs y_lin, which
+#   is computed by an FFT division (exact up to the tail of the impulse response past
+#   the padded length).
+
+
+def _play_indices(low, high, u0):
+    def step(carry, x):
+        u_prev, k, hi = carry
+        l_t, h_t, t = x
+        below, above = u_prev < l_t, u_prev > h_t
+        k = jnp.where(below | above, t, k)
+        hi = jnp.where(above, True, jnp.where(below, False, hi))
+        return (jnp.minimum(jnp.maximum(u_prev, l_t), h_t), k, hi), (k, hi)
+
+    t = jnp.arange(low.shape[0])
+    init = (jnp.asarray(u0, low.dtype), jnp.asarray(-1), jnp.asarray(False))
+    return jax.lax.scan(step, init, (low, high, t))[1]
+
+
+def _lag_n(x, k):
+    return x if k == 0 else _lag(x, k)
+
+
+def _iir_fft(a, num):
+    """``num / A(q^-1)`` with zero initial conditions, by FFT on a padded grid."""
+    T = num.shape[0]
+    nfft = 1 << (2 * T - 1).bit_length()
+    den = jnp.fft.rfft(jnp.concatenate([jnp.ones(1), a]), nfft)
+    return jnp.fft.irfft(jnp.fft.rfft(num, nfft) / den, nfft)[:T]
+
+
+def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
+                          output_static: bool = True):
+    """Prediction error of the extended model for fitting (see the comment above);
+    equals ``whiten(y, simulate_full(...))`` for any single extension, up to the start-up
+    transient. ``output_static=False`` drops the output clip and curvature (and the FFT
+    they need) for candidates that keep them neutral."""
+    na, nb, m = lay.na, lay.nb, lay.m
+    g = lambda name: lay.get(theta, name)  # noqa: E731
+    T = v.shape[0]
+    t = jnp.arange(T)
+    s = (t >= ints[1]).astype(v.dtype)
+    powers = (v[:, None] ** jnp.arange(m)) if m > 1 else jnp.ones((T, 1), v.dtype)
+    extra = (v / consts[0]) ** m
+    p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
+    p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
+    low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
+    k, hi = _play_indices(jax.lax.stop_gradient(low), jax.lax.stop_gradient(high), u0)
+    kk = jnp.maximum(k, 0)
+    u = jnp.where(k < 0, u0, jnp.where(hi, high[kk], low[kk]))
+    u = jnp.clip(u, g("in_lo")[0], g("in_hi")[0])
+    d = ints[0]
+    u = jnp.where(t >= d, u[jnp.maximum(t - d, 0)], 0.0)
+    a = jnp.concatenate([g("a"), g("a_extra")])
+    b = jnp.concatenate([g("b"), g("b_extra")])
+    da = jnp.concatenate([g("da"), jnp.zeros(1)])
+    db = jnp.concatenate([g("db"), jnp.zeros(1)])
+    bu = sum((b[i] + s * db[i]) * _lag(u, i + 1) for i in range(nb + 1))
+    du = u - jnp.concatenate([u[:1], u[:-1]])
+    tf = t.astype(v.dtype)
+    phase = 2 * math.pi * g("sin_freq")[0] * tf
+    add = (g("drift_offset")[0] + g("drift_rate")[0] * tf + g("sin_cos")[0] * jnp.cos(phase)
+           + g("sin_sin")[0] * jnp.sin(phase) + g("friction")[0] * jnp.tanh(du / consts[3]))
+    r = y - add
+    if output_static:
+        y_lin = _iir_fft(a, bu)
+        z = (y_lin - consts[1]) / consts[2]
+        shaped = y_lin + consts[2] * (g("nl2")[0] * z**2 + g("nl3")[0] * z**3) + add
+        r = r - (jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) - y_lin - add)
+    w = r - bu + sum((a[i] + s * da[i]) * _lag(r, i + 1) for i in range(na + 1))
+    nd = g("noise_d")
+    return w + nd[0] * _lag(w, 1) + nd[1] * _lag(w, 2)
+
+
+def _lag_rows(x, k):
+    return jnp.concatenate([jnp.zeros((k,) + x.shape[1:], x.dtype), x[:-k]])
+
+
+def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0):
+    """``d eps / d theta`` of :func:`fast_prediction_error` with ``output_static=False``,
+    shape ``(T, P)``, by the chain rule written out on whole records (forward-mode
+    autodiff of the same expression costs an order of magnitude more on a CPU: dozens
+    of small ops per tangent). Columns of the output-static slots are zero."""
+    na, nb, m = lay.na, lay.nb, lay.m
+    slots = lay.slots()
+    P = lay.size
+    g = lambda name: lay.get(theta, name)  # noqa: E731
+    T = v.shape[0]
+    t = jnp.arange(T)
+    s = (t >= ints[1]).astype(v.dtype)
+    powers = (v[:, None] ** jnp.arange(m)) if m > 1 else jnp.ones((T, 1), v.dtype)
+    extra = (v / consts[0]) ** m
+    p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
+    p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
+    low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
+    k, hi = _play_indices(low, high, u0)
+    kk = jnp.maximum(k, 0)
+    valid = (k >= 0).astype(v.dtype)
+    u_raw = jnp.where(k < 0, u0, jnp.where(hi, high[kk], low[kk]))
+    # which branch the held value came from
+    from1 = jnp.where(hi, p1[kk] >= p2[kk], p1[kk] <= p2[kk]).astype(v.dtype)
+    w1, w2 = valid * from1, valid * (1 - from1)
+
+    def block(name, values):
+        start, stop = slots[name]
+        return (start, stop, values)
+
+    Vk, Ek, sk = powers[kk], extra[kk], s[kk]
+    u_blocks = [block("c1", w1[:, None] * Vk), block("c2", w2[:, None] * Vk),
+                block("dc1", (w1 * sk)[:, None] * Vk), block("dc2", (w2 * sk)[:, None] * Vk),
+                block("c1_extra", (w1 * Ek)[:, None]), block("c2_extra", (w2 * Ek)[:, None])]
+    Du = jnp.zeros((T, P), v.dtype)
+    for start, stop, val in u_blocks:
+        Du = Du.at[:, start:stop].set(val)
+    in_lo, in_hi = g("in_lo")[0], g("in_hi")[0]
+    below, above = u_raw < in_lo, u_raw > in_hi
+    Du = Du * (~(below | above)).astype(v.dtype)[:, None]
+    Du = Du.at[:, slots["in_lo"][0]].set(below.astype(v.dtype))
+    Du = Du.at[:, slots["in_hi"][0]].set(above.astype(v.dtype))
+    u_s = jnp.clip(u_raw, in_lo, in_hi)
+    d = ints[0]
+    idx = jnp.maximum(t - d, 0)
+    on = (t >= d).astype(v.dtype)
+    u = on * u_s[idx]
+    Du = on[:, None] * Du[idx]
+
+    b = jnp.concatenate([g("b"), g("b_extra")])
+    db = jnp.concatenate([g("db"), jnp.zeros(1)])
+    bu = sum((b[i] + s * db[i]) * _lag(u, i + 1) for i in range(nb + 1))
+    Dbu = sum((b[i] + s * db[i])[:, None] * _lag_rows(Du, i + 1) for i in range(nb + 1))
+    for i in range(nb):
+        Dbu = Dbu.at[:, slots["b"][0] + i].add(_lag(u, i + 1))
+        Dbu = Dbu.at[:, slots["db"][0] + i].add(s * _lag(u, i + 1))
+    Dbu = Dbu.at[:, slots["b_extra"][0]].add(_lag(u, nb + 1))
+
+    du = u - jnp.concatenate([u[:1], u[:-1]])
+    Ddu = Du - jnp.concatenate([Du[:1], Du[:-1]])
+    tf = t.astype(v.dtype)
+    phase = 2 * math.pi * g("sin_freq")[0] * tf
+    sc, ss, F = g("sin_cos")[0], g("sin_sin")[0], g("friction")[0]
+    th = jnp.tanh(du / consts[3])
+    add = (g("drift_offset")[0] + g("drift_rate")[0] * tf + sc * jnp.cos(phase)
+           + ss * jnp.sin(phase) + F * th)
+    Dadd = (F * (1 - th**2) / consts[3])[:, None] * Ddu
+    for name, col in (("drift_offset", jnp.ones_like(tf)), ("drift_rate", tf),
+                      ("sin_freq", 2 * math.pi * tf * (ss * jnp.cos(phase) - sc * jnp.sin(phase))),
+                      ("sin_cos", jnp.cos(phase)), ("sin_sin", jnp.sin(phase)), ("friction", th)):
+        Dadd = Dadd.at[:, slots[name][0]].add(col)
+
+    a = jnp.concatenate([g("a"), g("a_extra")])
+    da = jnp.concatenate([g("da"), jnp.zeros(1)])
+    r = y - add
+    w = r - bu + sum((a[i] + s * da[i]) * _lag(r, i + 1) for i in range(na + 1))
+    Dr = -Dadd
+    Dw = Dr - Dbu + sum((a[i] + s * da[i])[:, None] * _lag_rows(Dr, i + 1) for i in range(na + 1))
+    for i in range(na):
+        Dw = Dw.at[:, slots["a"][0] + i].add(_lag(r, i + 1))
+        Dw = Dw.at[:, slots["da"][0] + i].add(s * _lag(r, i + 1))
+    Dw = Dw.at[:, slots["a_extra"][0]].add(_lag(r, na + 1))
+    nd = g("noise_d")
+    De = Dw + nd[0] * _lag_rows(Dw, 1) + nd[1] * _lag_rows(Dw, 2)
+    De = De.at[:, slots["noise_d"][0]].add(_lag(w, 1))
+    De = De.at[:, slots["noise_d"][0] + 1].add(_lag(w, 2))
+    return De

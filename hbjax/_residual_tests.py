@@ -1,0 +1,141 @@
+"""Residual analysis of a nominal model (NumPy; run once per diagnosis).
+
+The classical validation tests (MATLAB ``resid``): whiteness of the prediction error
+(autocorrelation with a 99% band, Ljung-Box), independence from past inputs
+(cross-correlation), plus what the diagnosis needs to *locate* a mismatch: dependence of
+the residual on regime variables (input level, output level, motion direction), its
+spectral peak, and windows in time where the residual is large.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from jax.scipy.special import gammaincc
+
+Z99 = 2.5758293035489004  # two-sided 99% normal quantile
+
+
+def chi2_sf(x: float, dof: int) -> float:
+    """Survival function of the chi-square distribution."""
+    if x <= 0:
+        return 1.0
+    return float(gammaincc(dof / 2.0, x / 2.0))
+
+
+def correlation(x: np.ndarray, z: np.ndarray, lags: int) -> np.ndarray:
+    """``r(k) = sum_t x(t) z(t-k) / (||x|| ||z||)`` for ``k = 0..lags``."""
+    x = x - x.mean()
+    z = z - z.mean()
+    den = np.sqrt(np.sum(x * x) * np.sum(z * z)) or 1.0
+    return np.array([np.sum(x[k:] * z[:len(z) - k]) / den for k in range(lags + 1)])
+
+
+def whiteness(eps: np.ndarray, lags: int = 25) -> dict:
+    """Autocorrelation of ``eps`` at lags 1..``lags`` against the 99% band, and Ljung-Box."""
+    n = len(eps)
+    r = correlation(eps, eps, lags)[1:]
+    q = n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1)))
+    return {"max_abs_acf": float(np.max(np.abs(r))), "band99": Z99 / math.sqrt(n),
+            "lags_outside": int(np.sum(np.abs(r) > Z99 / math.sqrt(n))),
+            "ljung_box": float(q), "p_value": chi2_sf(q, lags)}
+
+
+def independence(eps: np.ndarray, u: np.ndarray, lags: int = 25) -> dict:
+    """Cross-correlation of ``eps`` with past inputs ``u(t-k)``, ``k = 0..lags``."""
+    n = len(eps)
+    r = correlation(eps, u, lags)
+    stat = n * float(np.sum(r**2))
+    return {"max_abs_ccf": float(np.max(np.abs(r))), "band99": Z99 / math.sqrt(n),
+            "lags_outside": int(np.sum(np.abs(r) > Z99 / math.sqrt(n))),
+            "statistic": stat, "p_value": chi2_sf(stat, lags + 1)}
+
+
+def regime_dependence(res: np.ndarray, regime: np.ndarray, bins: int = 8) -> dict:
+    """How much of the residual's variance its mean per regime bin explains (an F-type
+    ratio). ``regime`` is binned by quantiles; a sign variable gives at most 3 bins."""
+    edges = np.unique(np.quantile(regime, np.linspace(0, 1, bins + 1)))
+    idx = np.clip(np.searchsorted(edges, regime, side="right") - 1, 0, max(len(edges) - 2, 0))
+    groups = [res[idx == g] for g in np.unique(idx)]
+    means = np.array([g.mean() for g in groups])
+    counts = np.array([len(g) for g in groups])
+    between = float(np.sum(counts * (means - res.mean()) ** 2))
+    total = float(np.sum((res - res.mean()) ** 2)) or 1.0
+    worst = int(np.argmax(np.abs(means - res.mean()) * np.sqrt(counts)))
+    lo = float(edges[min(worst, len(edges) - 1)])
+    hi = float(edges[min(worst + 1, len(edges) - 1)])
+    return {"explained": between / total, "worst_range": [lo, hi],
+            "worst_mean": float(means[worst]), "bins": len(groups)}
+
+
+def spectral_peaks(res: np.ndarray, count: int = 3, pad: int = 4,
+                   exclude: np.ndarray | None = None) -> list[tuple[float, float]]:
+    """The ``count`` strongest periodogram peaks ``(frequency in cycles/sample, peak to
+    median power ratio)``; bins where ``exclude`` (a periodogram of the input on the same
+    grid) is strong are skipped: a disturbance "unrelated to the input"."""
+    n = len(res)
+    nfft = int(2 ** math.ceil(math.log2(n * pad)))
+    p = np.abs(np.fft.rfft((res - res.mean()) * np.hanning(n), nfft)) ** 2
+    f = np.fft.rfftfreq(nfft)
+    ok = f > 3.0 / n
+    if exclude is not None:
+        ok &= exclude < 0.05 * exclude.max()
+    med = float(np.median(p[ok])) if np.any(ok) else 1.0
+    peaks = []
+    pw = np.where(ok, p, 0.0)
+    width = max(1, int(2 * nfft / n))
+    for _ in range(count):
+        k = int(np.argmax(pw))
+        if pw[k] <= 0:
+            break
+        peaks.append((float(f[k]), float(pw[k] / (med or 1.0))))
+        pw[max(0, k - width):k + width + 1] = 0.0
+    return peaks
+
+
+def periodogram(x: np.ndarray, pad: int = 4) -> np.ndarray:
+    n = len(x)
+    nfft = int(2 ** math.ceil(math.log2(n * pad)))
+    return np.abs(np.fft.rfft((x - x.mean()) * np.hanning(n), nfft)) ** 2
+
+
+def windows(mask: np.ndarray, min_gap: int = 10, min_len: int = 3, offset: int = 0,
+            limit: int = 8) -> list[list[int]]:
+    """Runs of ``True`` in ``mask`` as ``[start, stop)`` sample windows; runs closer than
+    ``min_gap`` are merged, shorter than ``min_len`` dropped, the ``limit`` longest kept
+    (in time order)."""
+    idx = np.flatnonzero(mask)
+    if idx.size == 0:
+        return []
+    runs, start, prev = [], idx[0], idx[0]
+    for i in idx[1:]:
+        if i - prev > min_gap:
+            runs.append([int(start) + offset, int(prev) + 1 + offset])
+            start = i
+        prev = i
+    runs.append([int(start) + offset, int(prev) + 1 + offset])
+    runs = [r for r in runs if r[1] - r[0] >= min_len]
+    runs = sorted(sorted(runs, key=lambda r: r[0] - r[1])[:limit])
+    return runs
+
+
+def diebold_mariano(ref: np.ndarray, new: np.ndarray) -> float:
+    """z statistic that ``new`` has smaller squared error than ``ref`` (paired, with a
+    Newey-West long-run variance: residuals of a dynamic model are autocorrelated)."""
+    d = ref**2 - new**2
+    n = len(d)
+    lag = max(10, int(3 * n ** (1 / 3)))
+    dc = d - d.mean()
+    lrv = np.sum(dc * dc) / n
+    for k in range(1, min(lag, n - 1) + 1):
+        lrv += 2 * (1 - k / (lag + 1)) * np.sum(dc[k:] * dc[:-k]) / n
+    if lrv <= 0:
+        return 0.0 if d.mean() == 0 else math.copysign(np.inf, d.mean())
+    return float(d.mean() / math.sqrt(lrv / n))
+
+
+def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` (MATLAB ``compare``'s NRMSE fit)."""
+    den = np.linalg.norm(y - y.mean())
+    return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / (den or 1.0)))

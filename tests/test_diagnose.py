@@ -1,0 +1,225 @@
+"""Mismatch diagnosis (issue 5): effect models, the fast fitting criterion, bad input, and
+the concealed-effect study (top-1 accuracy, no finding on clean data, held-out
+improvement, localisation)."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hbjax
+from hbjax import _effects as fx
+from hbjax._effects_kernel import fast_prediction_error, prediction_error
+
+
+def _reference(c1, c2, a, b, v, xi, *, delay=0, u_clip=(-np.inf, np.inf), y_map=None):
+    """Plain-NumPy loop of the extended model (NOTES.md conventions + the extension)."""
+    T = len(v)
+    y, u = np.zeros(T), np.zeros(T)
+    state = 0.0
+    for t in range(T):
+        p1 = sum(c * v[t] ** i for i, c in enumerate(c1))
+        p2 = sum(c * v[t] ** i for i, c in enumerate(c2))
+        state = min(max(state, min(p1, p2)), max(p1, p2))
+        u[t] = min(max(state, u_clip[0]), u_clip[1])
+        acc = xi[t]
+        for i in range(len(a)):
+            if t - 1 - i >= 0:
+                acc -= a[i] * y[t - 1 - i]
+        for i in range(len(b)):
+            if t - 1 - i - delay >= 0:
+                acc += b[i] * u[t - 1 - i - delay]
+        y[t] = acc
+    return y if y_map is None else y_map(y, u)
+
+
+@pytest.fixture
+def record(system):
+    rng = np.random.default_rng(3)
+    v = np.repeat(rng.uniform(-8, 8, 40), 8)
+    xi = 0.05 * rng.standard_normal(len(v))
+    return system, v, xi
+
+
+def _args(system):
+    return ([np.asarray(x) for x in (system.backlash.c1, system.backlash.c2, system.arx.a,
+                                      system.arx.b)])
+
+
+def test_effects_against_plain_loop(record):
+    system, v, xi = record
+    c1, c2, a, b = _args(system)
+    cases = [
+        (fx.ExtraDelay(system, 3), dict(delay=3)),
+        (fx.InputSaturation(system, jnp.asarray(-2.0), jnp.asarray(3.0)), dict(u_clip=(-2, 3))),
+        (fx.OutputSaturation(system, None, jnp.asarray(5.0)),
+         dict(y_map=lambda y, u: np.minimum(y, 5.0))),
+        (fx.OffsetDrift(system, jnp.asarray(0.5), jnp.asarray(0.01)),
+         dict(y_map=lambda y, u: y + 0.5 + 0.01 * np.arange(len(y)))),
+        (fx.PeriodicDisturbance(system, jnp.asarray(0.1), jnp.asarray(0.3), jnp.asarray(-0.2)),
+         dict(y_map=lambda y, u: y + 0.3 * np.cos(0.2 * np.pi * np.arange(len(y)))
+              - 0.2 * np.sin(0.2 * np.pi * np.arange(len(y))))),
+        (fx.CoulombFriction(system, jnp.asarray(0.7), 0.05),
+         dict(y_map=lambda y, u: y + 0.7 * np.tanh(np.diff(u, prepend=u[0]) / 0.05))),
+    ]
+    for model, kw in cases:
+        got = np.asarray(hbjax.simulate(model, v, xi))
+        np.testing.assert_allclose(got, _reference(c1, c2, a, b, v, xi, **kw), atol=1e-10,
+                                   err_msg=type(model).__name__)
+
+
+def test_parameter_change_and_unmodeled_dynamics(record):
+    system, v, xi = record
+    c1, c2, a, b = _args(system)
+    change = fx.ParameterChange(system, 100, jnp.zeros(2), jnp.asarray([-0.3, 0.1]),
+                                jnp.zeros(3), jnp.zeros(3))
+    after = _reference(c1, c2, a, b + np.array([-0.3, 0.1]), v, xi)
+    got = np.asarray(hbjax.simulate(change, v, xi))
+    np.testing.assert_allclose(got[:100], _reference(c1, c2, a, b, v, xi)[:100], atol=1e-10)
+    assert np.max(np.abs(got[100:] - after[100:])) < np.max(np.abs(after[100:])) and \
+        not np.allclose(got[100:], _reference(c1, c2, a, b, v, xi)[100:])
+    extra = fx.UnmodeledDynamics(system, jnp.asarray(0.1), jnp.asarray(0.2))
+    np.testing.assert_allclose(
+        np.asarray(hbjax.simulate(extra, v, xi)),
+        _reference(c1, c2, np.append(a, 0.1), np.append(b, 0.2), v, xi), atol=1e-10)
+
+
+def test_neutral_extensions_are_the_nominal_model(record):
+    system, v, xi = record
+    y = hbjax.simulate(system, v, xi)
+    for model in (fx.ExtraDelay(system, 0), fx.ColoredNoise(system, jnp.zeros(2)),
+                  fx.OutputSaturation(system, None, None)):
+        np.testing.assert_allclose(hbjax.simulate(model, v, xi), y, atol=1e-12)
+        np.testing.assert_allclose(hbjax.predict(model, v, y), hbjax.predict(system, v, y),
+                                   atol=1e-12)
+
+
+@pytest.mark.parametrize("effect", [e for e in hbjax.EFFECTS if e != "parameter_mismatch"])
+def test_fast_criterion_equals_exact_prediction_error(effect):
+    rec = hbjax.concealed_recording(effect, system=2, n=600, key=jax.random.PRNGKey(4))
+    model = rec.true_model
+    lay, theta, ints, consts = model.parts()
+    v, y = jnp.asarray(rec.v), jnp.asarray(rec.y)
+    exact = prediction_error(lay, theta, ints, consts, v, y)[0]
+    fast = fast_prediction_error(lay, theta, ints, consts, v, y)
+    np.testing.assert_allclose(fast[20:], exact[20:], atol=1e-9)
+    # and the exact one is the model's own predictor
+    np.testing.assert_allclose(y - hbjax.predict(model, v, y), exact, atol=1e-9)
+
+
+def test_gradient_through_extension_matches_finite_differences(record):
+    system, v, xi = record
+    y = np.asarray(hbjax.simulate(fx.InputSaturation(system, None, jnp.asarray(3.0)), v, xi))
+
+    def loss(level):
+        return jnp.sum((hbjax.simulate(fx.InputSaturation(system, None, level), v) - y) ** 2)
+
+    g = jax.grad(loss)(jnp.asarray(2.5))
+    h = 1e-6
+    fd = (loss(jnp.asarray(2.5 + h)) - loss(jnp.asarray(2.5 - h))) / (2 * h)
+    np.testing.assert_allclose(g, fd, rtol=1e-5)
+
+
+# --- bad input ----------------------------------------------------------------------
+
+
+def test_bad_input(system):
+    v = np.sin(np.arange(1000) / 10.0) * 8
+    y = np.asarray(hbjax.simulate(system, v))
+    with pytest.raises(ValueError, match="equal lengths"):
+        hbjax.diagnose(system, v, y[:-1])
+    bad = y.copy()
+    bad[10] = np.nan
+    with pytest.raises(ValueError, match="`y` contains NaN"):
+        hbjax.diagnose(system, v, bad)
+    with pytest.raises(ValueError, match="too short"):
+        hbjax.diagnose(system, v[:120], y[:120])
+    with pytest.raises(ValueError, match="unknown effect"):
+        hbjax.diagnose(system, v, y, effects=["backlash_wear"])
+    with pytest.raises(ValueError, match="`holdout`"):
+        hbjax.diagnose(system, v, y, holdout=1.5)
+    with pytest.raises(TypeError, match="`model`"):
+        hbjax.diagnose("model", v, y)
+    with pytest.raises(ValueError, match="unknown `effect`"):
+        hbjax.concealed_recording("gremlins")
+
+
+# --- the concealed-effect study -------------------------------------------------------
+
+EFFECT_NAMES = list(hbjax.EFFECTS)
+SYSTEMS = (0, 1, 2)
+NOISE = {0: 0.02, 1: 0.05, 2: 0.03}
+N = 1500
+
+
+def _case(effect, system, j):
+    inputs = hbjax._concealed.INPUTS[(j + system) % 3]
+    return hbjax.concealed_recording(effect, system=system, inputs=inputs, n=N,
+                                     noise=NOISE[system], key=jax.random.PRNGKey(100 * system + j))
+
+
+@pytest.fixture(scope="module")
+def study():
+    rows = []
+    for system in SYSTEMS:
+        for j, effect in enumerate([None, None] + EFFECT_NAMES):
+            rec = _case(effect, system, j)
+            rows.append((rec, hbjax.diagnose(rec.model, rec.v, rec.y)))
+    return rows
+
+
+@pytest.mark.slow
+def test_top1_accuracy(study):
+    effect_rows = [(r, d) for r, d in study if r.effect is not None]
+    hits = [d.best is not None and d.best.effect == r.effect for r, d in effect_rows]
+    misses = [(r.effect, d.best and d.best.effect) for (r, d), h in zip(effect_rows, hits) if not h]
+    assert np.mean(hits) >= 0.9, misses
+
+
+@pytest.mark.slow
+def test_clean_recordings_have_no_finding(study):
+    for rec, d in study:
+        if rec.effect is None:
+            assert d.best is None and not d.mismatch, d.summary()
+
+
+@pytest.mark.slow
+def test_correct_findings_improve_held_out_fit(study):
+    for rec, d in study:
+        if d.best is not None and d.best.effect == rec.effect:
+            assert d.best.fit_after > d.best.fit_before, (rec.effect, d.best.fit_before)
+
+
+@pytest.mark.slow
+def test_localisation(study):
+    for rec, d in study:
+        f = d.best
+        if f is None or f.effect != rec.effect:
+            continue
+        if f.effect == "parameter_change":
+            assert abs(f.parameters["time"] - rec.truth["time"]) <= 0.05 * len(rec.y)
+        elif f.effect == "extra_delay":
+            assert f.parameters["delay"] == rec.truth["delay"]
+        elif f.effect in ("output_saturation", "input_saturation"):
+            for side in ("lower", "upper"):
+                if rec.truth[side] is not None and f.parameters[side] is not None:
+                    assert abs(f.parameters[side] - rec.truth[side]) <= 0.1 * abs(rec.truth[side])
+            assert f.parameters["upper"] is not None
+        elif f.effect == "periodic_disturbance":
+            assert abs(f.parameters["frequency"] - rec.truth["frequency"]) \
+                <= 0.02 * rec.truth["frequency"]
+
+
+@pytest.mark.slow
+def test_reports_are_json_and_models_run(study):
+    for rec, d in study[:6]:
+        text = json.dumps(d.to_dict())
+        assert json.loads(text)["mismatch"] == d.mismatch
+        assert "Mismatch diagnosis" in d.summary()
+        for f in d.findings:
+            assert f.effect in hbjax.EFFECTS
+            y_sim = np.asarray(hbjax.simulate(f.model, rec.v))
+            assert np.all(np.isfinite(y_sim))
+            assert f.physics and isinstance(f.where, dict)
