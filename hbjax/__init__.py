@@ -16,6 +16,10 @@ from ._signals import GiriDesign as GiriDesign
 from ._simulate import play as play, predict as predict, simulate as simulate
 
 # --- refinement (issue 3) ---
+from ._crlb import CRLBResult as CRLBResult, crlb as crlb
+from ._fit import FitResult as FitResult, fit as fit, normalise_static_gain as normalise_static_gain
+from ._refine import RefineResult as RefineResult, RefinementError as RefinementError, refine as refine
+from ._separable import separable_ls as separable_ls
 # --- monte carlo (issue 4) ---
 from ._monte_carlo import Study as Study, monte_carlo as monte_carlo
 # --- diagnosis (issue 5) ---

@@ -1,0 +1,298 @@
+"""Fitting criteria shared by refinement, multi-start fitting, separable least squares and
+the Cramér–Rao bound: the parametrisation that fixes the gain ambiguity, and the residuals.
+
+Everything here is traceable (jit/vmap/jacfwd) and never raises on values.
+"""
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
+from jaxtyping import Array, Float
+
+from ._arx import ARX
+from ._backlash import Backlash, polyval_ascending
+from ._model import Hammerstein
+
+PREDICTION = "prediction"
+SIMULATION = "simulation"
+CRITERIA = (PREDICTION, SIMULATION)
+
+
+# --------------------------------------------------------------------------- parametrisation
+PAPER = "paper"  # P2(-h_m) - P1(h_m) = 1 (paper section 4.1)
+STATIC_GAIN = "static_gain"  # B(1) = 1
+
+
+class Parametrisation(eqx.Module):
+    """Free parameters ``z`` <-> the normalised model, for one gauge.
+
+    The input-output behaviour only fixes ``(A, mu B, P/mu)``; one linear equality removes
+    the scale ``mu``:
+
+    - ``gauge="paper"`` (``h_m`` given): ``P2(-h_m) - P1(h_m) = 1``, solved for ``c2_0``;
+    - ``gauge="static_gain"``: ``B(1) = b_1 + ... + b_nb = 1``, solved for ``b_1``.
+
+    Internally the branches are evaluated in ``x = v / scale`` (``scale`` = largest
+    ``|v|`` of the data), with scaled coefficients ``c_i scale^i``: the Jacobian columns
+    then have comparable sizes, which the Levenberg–Marquardt damping assumes.
+    """
+
+    na: int = eqx.field(static=True)
+    nb: int = eqx.field(static=True)
+    m: int = eqx.field(static=True)
+    gauge: str = eqx.field(static=True)
+    scale: Float[Array, ""]
+    h_m: Float[Array, ""]
+
+    @property
+    def size(self) -> int:
+        """Number of parameters in the flattened model (a, b, c1, c2)."""
+        return self.na + self.nb + 2 * self.m
+
+    @property
+    def eliminated(self) -> int:
+        """Index (in flatten order) of the coefficient the equality constraint fixes."""
+        return self.na + self.nb + self.m if self.gauge == PAPER else self.na
+
+    def _powers(self):
+        return self.scale ** jnp.arange(self.m)
+
+    def constraint_row(self) -> Float[Array, " p"]:
+        """``g`` with ``g^T theta = 1`` for the normalised (unscaled) ``theta``."""
+        g = jnp.zeros(self.size)
+        if self.gauge == PAPER:
+            k = jnp.arange(self.m)
+            off = self.na + self.nb
+            g = g.at[off:off + self.m].set(-(self.h_m**k))
+            g = g.at[off + self.m:].set((-self.h_m) ** k)
+        else:
+            g = g.at[self.na:self.na + self.nb].set(1.0)
+        return g
+
+    def theta_scaled(self, z: Float[Array, " q"]) -> Float[Array, " p"]:
+        """Free parameters -> ``[a, b, c1 scale^i, c2 scale^i]`` satisfying the constraint."""
+        k = self.eliminated
+        theta = jnp.concatenate([z[:k], jnp.zeros(1, z.dtype), z[k:]])
+        g = self.constraint_row() * self._scaling_inverse()
+        # g[k] is +1 in both gauges (c2_0 enters P2(-h_m) with weight 1; b_1 enters B(1)).
+        return theta.at[k].set(1.0 - jnp.dot(g, theta))
+
+    def _scaling(self):
+        ones = jnp.ones(self.na + self.nb)
+        return jnp.concatenate([ones, self._powers(), self._powers()])
+
+    def _scaling_inverse(self):
+        return 1.0 / self._scaling()
+
+    def theta(self, z):
+        """Free parameters -> normalised ``theta`` in :func:`hbjax.flatten_params` order."""
+        return self.theta_scaled(z) * self._scaling_inverse()
+
+    def free(self, theta):
+        """Normalised ``theta`` -> free parameters (drops the eliminated coefficient)."""
+        ts = theta * self._scaling()
+        k = self.eliminated
+        return jnp.concatenate([ts[:k], ts[k + 1:]])
+
+    def jacobian(self) -> Float[Array, "p q"]:
+        """``d theta / d z`` (constant: the parametrisation is affine)."""
+        return jax.jacfwd(self.theta)(jnp.zeros(self.size - 1))
+
+    def model(self, z) -> Hammerstein:
+        theta = self.theta(z)
+        na, nb, m = self.na, self.nb, self.m
+        return Hammerstein(
+            Backlash(theta[na + nb:na + nb + m], theta[na + nb + m:]),
+            ARX(theta[:na], theta[na:na + nb]),
+        )
+
+
+# --------------------------------------------------------------------------- residuals
+def play_sources(low: Float[Array, " time"], high: Float[Array, " time"]):
+    """The play operator ``u(t) = min(max(u(t-1), low(t)), high(t))`` (``u(-1) = 0``) and,
+    for every ``t``, the instant whose band edge ``u(t)`` equals: ``src(t) = s`` if
+    ``u(t) = low(s)``, ``T + s`` if ``u(t) = high(s)``, ``-1`` while still ``u(-1)``.
+
+    The scan body is two selects; all the arithmetic is vectorised outside it.
+    """
+    T = low.shape[0]
+
+    def step(carry, inputs):
+        u_prev, src_prev = carry
+        lo, hi, t = inputs
+        raised = jnp.maximum(u_prev, lo)
+        src = jnp.where(raised > hi, T + t, jnp.where(u_prev < lo, t, src_prev))
+        u = jnp.minimum(raised, hi)
+        return (u, src), (u, src)
+
+    init = (jnp.zeros((), low.dtype), jnp.asarray(-1, jnp.int32))
+    _, (u, src) = jax.lax.scan(step, init, (low, high, jnp.arange(T, dtype=jnp.int32)))
+    return u, src
+
+
+def arx_filter(a: Float[Array, " na"], w: Float[Array, "time ..."]) -> Float[Array, "time ..."]:
+    """``A(q^-1) y = w`` with zero initial conditions (free run of the linear block),
+    applied along the first axis of ``w`` (trailing axes are independent columns)."""
+    na = a.shape[0]
+    if na == 0:
+        return w
+
+    def step(lags, w_t):
+        y_t = w_t
+        for i in range(na):
+            y_t = y_t - a[i] * lags[i]
+        return (y_t,) + lags[:-1], y_t
+
+    _, y = jax.lax.scan(step, (jnp.zeros(w.shape[1:], w.dtype),) * na, w)
+    return y
+
+
+def _lag_sum(coef, x):
+    """``sum_i coef[i] x(t - 1 - i)`` along the first axis (zero before t = 0)."""
+    out = jnp.zeros_like(x)
+    for i in range(coef.shape[0]):
+        out = out + coef[i] * lagged_rows(x, i + 1)
+    return out
+
+
+def lagged_rows(x, lag: int):
+    """:func:`hbjax._model.lagged` along the first axis of an array of any rank."""
+    if lag == 0:
+        return x
+    return jnp.concatenate([jnp.zeros((lag,) + x.shape[1:], x.dtype), x[:-lag]])
+
+
+def _split(theta, na, nb):
+    m = (theta.shape[0] - na - nb) // 2
+    return theta[:na], theta[na:na + nb], theta[na + nb:na + nb + m], theta[na + nb + m:]
+
+
+def _internal(theta, x, na, nb):
+    """``u``, its derivative ``G`` (T x 2m) with respect to ``(c1, c2)`` and ``g_x``
+    (T,) with respect to the input at the source instant, and the source index.
+
+    ``u(t)`` equals one branch at one past input ``x(s)``: its derivative with respect to
+    the coefficients is the row of powers ``x(s)^i`` on that branch (a gather), which
+    replaces differentiating through the sequential loop.
+    """
+    _, _, c1, c2 = _split(theta, na, nb)
+    m = c1.shape[0]
+    T = x.shape[0]
+    p1, p2 = polyval_ascending(c1, x), polyval_ascending(c2, x)
+    u, src = play_sources(jnp.minimum(p1, p2), jnp.maximum(p1, p2))
+    valid = src >= 0
+    on_high = src >= T
+    idx = jnp.where(valid, jnp.where(on_high, src - T, src), 0)
+    q1, q2 = p1[idx], p2[idx]
+    on_p1 = valid & jnp.where(on_high, q1 >= q2, q1 <= q2)
+    on_p2 = valid & ~on_p1
+    xs = x[idx]
+    powers = xs[:, None] ** jnp.arange(m)[None, :]
+    grad = jnp.concatenate([powers * on_p1[:, None], powers * on_p2[:, None]], axis=1)
+    k = jnp.arange(1, m)
+    d1 = polyval_ascending(c1[1:] * k, xs) if m > 1 else jnp.zeros_like(xs)
+    d2 = polyval_ascending(c2[1:] * k, xs) if m > 1 else jnp.zeros_like(xs)
+    grad_x = jnp.where(on_p1, d1, jnp.where(on_p2, d2, 0.0))
+    return u, grad, grad_x, idx
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(2, 3))
+def internal_signal(theta, x, na: int, nb: int):
+    """``u = HB(P1, P2)(x)`` (``u(-1) = 0``) for ``theta = [a, b, c1, c2]``; its JVP is
+    the closed-form gather of :func:`_internal` (exact in ``c1, c2`` and ``x``)."""
+    return _internal(theta, x, na, nb)[0]
+
+
+@internal_signal.defjvp
+def _internal_signal_jvp(na, nb, primals, tangents):
+    theta, x = primals
+    d_theta, d_x = tangents
+    u, grad_c, grad_x, idx = _internal(theta, x, na, nb)
+    return u, grad_c @ d_theta[na + nb:] + grad_x * d_x[idx]
+
+
+def _residual_and_jacobian(theta, x, y, na, nb, criterion):
+    a, b, _, _ = _split(theta, na, nb)
+    u, grad_c, grad_x, idx = _internal(theta, x, na, nb)
+    w = _lag_sum(b, u)
+    lag_u = jnp.stack([lagged_rows(u, i + 1) for i in range(nb)], axis=1)
+    lag_g = _lag_sum(b, grad_c)
+    if criterion == PREDICTION:
+        r = y + _lag_sum(a, y) - w
+        lag_y = [lagged_rows(y, i + 1) for i in range(na)]
+        cols = [jnp.stack(lag_y, axis=1)] if na else []
+        jac = jnp.concatenate(cols + [-lag_u, -lag_g], axis=1)
+    else:
+        y_sim = arx_filter(a, w)
+        r = y - y_sim
+        lag_s = [lagged_rows(y_sim, i + 1) for i in range(na)]
+        cols = [jnp.stack(lag_s, axis=1)] if na else []
+        jac = arx_filter(a, jnp.concatenate(cols + [-lag_u, -lag_g], axis=1))
+    return r, jac, (a, b, grad_x, idx)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(3, 4, 5))
+def record_residual(theta, x, y, na: int, nb: int, criterion: str):
+    """Residual of one record: ``y - y_hat`` (prediction errors of eq. (10)) or
+    ``y - y_sim`` (output errors), for ``theta = [a, b, c1, c2]`` acting on ``x``.
+
+    Its JVP uses the Jacobian assembled in closed form (the play operator's output is a
+    branch value at a source instant), ~3x cheaper than forward-mode through the scans.
+    """
+    return _residual_and_jacobian(theta, x, y, na, nb, criterion)[0]
+
+
+@functools.partial(record_residual.defjvp, symbolic_zeros=True)
+def _record_residual_jvp(na, nb, criterion, primals, tangents):
+    theta, x, y = primals
+    d_theta, d_x, d_y = tangents
+    r, jac, (a, b, grad_x, idx) = _residual_and_jacobian(theta, x, y, na, nb, criterion)
+    dr = jnp.zeros_like(r)
+    if not isinstance(d_theta, SymbolicZero):
+        dr = dr + jac @ d_theta
+    if not isinstance(d_x, SymbolicZero):
+        du = _lag_sum(b, grad_x * d_x[idx])
+        dr = dr - (du if criterion == PREDICTION else arx_filter(a, du))
+    if not isinstance(d_y, SymbolicZero):
+        dr = dr + d_y + (_lag_sum(a, d_y) if criterion == PREDICTION else 0.0)
+    return r, dr
+
+
+def record_outputs(model: Hammerstein, v, y, criterion: str):
+    """``y_hat`` (one-step-ahead prediction, eq. (10)) or ``y_sim`` (free run) of one
+    record, ``u(-1) = 0`` and zero initial conditions as :func:`hbjax.simulate`."""
+    na, nb = model.arx.na, model.arx.nb
+    theta = jnp.concatenate([model.arx.a, model.arx.b, model.backlash.c1, model.backlash.c2])
+    return y - record_residual(theta, v, y, na, nb, criterion)
+
+
+def residuals(z, par: Parametrisation, recordings, criterion: str):
+    """Residuals ``y - y_hat`` or ``y - y_sim`` of all records (a tuple, one per record).
+
+    The branches are evaluated in ``x = v / scale`` with the scaled coefficients, which is
+    the same operator as the unscaled branches on ``v``.
+    """
+    theta = par.theta_scaled(z)
+    return tuple(record_residual(theta, v / par.scale, y, par.na, par.nb, criterion)
+                 for v, y in recordings)
+
+
+def outputs(model: Hammerstein, recordings, criterion: str):
+    """``y_hat`` or ``y_sim`` of a model for every record (a tuple)."""
+    return tuple(record_outputs(model, v, y, criterion) for v, y in recordings)
+
+
+def data_scale(recordings):
+    """Largest ``|v|`` over all records (1 if all inputs are 0)."""
+    s = jnp.max(jnp.stack([jnp.max(jnp.abs(v)) for v, _ in recordings]))
+    return jnp.where(s > 0, s, 1.0)
+
+
+def branches_cross(model: Hammerstein, recordings):
+    """Whether ``P1 - P2`` changes sign at the recorded inputs (the labels of the branches
+    are then not those of a band: the play operator still uses ``L = min``, ``H = max``)."""
+    d = jnp.concatenate([model.backlash.p1(v) - model.backlash.p2(v) for v, _ in recordings])
+    return (jnp.max(d) > 0) & (jnp.min(d) < 0)

@@ -1,0 +1,130 @@
+"""Fisher information and the constrained Cramér–Rao lower bound of the normalised
+parameters."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._checks import is_traced
+from ._config import require_x64
+from ._criteria import PAPER, STATIC_GAIN, Parametrisation, outputs
+from ._model import Hammerstein
+from ._params import flatten_params
+from ._recordings import as_recordings, check_criterion, check_h_m, check_model
+
+
+class CRLBResult(eqx.Module):
+    """The Cramér–Rao bound of :func:`crlb`.
+
+    - `fisher`: Fisher information ``J^T J / sigma^2`` of the parameters ``theta`` (order
+      a, b, c1, c2 of :func:`hbjax.flatten_params`), shape ``(p, p)``; singular along the
+      gain ambiguity.
+    - `covariance`: the constrained bound ``U (U^T F U)^+ U^T`` (Stoica & Ng 1998),
+      ``U`` an orthonormal basis of the directions the normalisation leaves free.
+    - `constraint`: ``g`` with ``g^T theta = 1`` (the normalisation).
+    - `gauge`: ``"paper"`` or ``"static_gain"``.
+    """
+
+    fisher: Float[Array, "p p"]
+    covariance: Float[Array, "p p"]
+    constraint: Float[Array, " p"]
+    gauge: str = eqx.field(static=True)
+
+    @property
+    def std(self) -> Float[Array, " p"]:
+        """Lower bound on the standard deviation of each normalised parameter."""
+        return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance), 0.0))
+
+
+def crlb_traceable(model: Hammerstein, recordings, *, noise_std, criterion="prediction",
+                   h_m=None) -> CRLBResult:
+    """Traceable core of :func:`crlb` (``recordings`` a tuple of ``(v, y)`` arrays)."""
+    na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
+    gauge = STATIC_GAIN if h_m is None else PAPER
+    par = Parametrisation(na, nb, m, gauge, jnp.asarray(1.0),
+                          jnp.asarray(0.0 if h_m is None else h_m, jnp.float64))
+    theta = flatten_params(model)
+
+    def outs(th):
+        return jnp.concatenate(outputs(_rebuild(model, th), recordings, criterion))
+
+    jac = jax.jacfwd(outs)(theta)
+    fisher = jac.T @ jac / jnp.asarray(noise_std) ** 2
+    g = par.constraint_row()
+    # Orthonormal basis of the null space of g^T: the directions the constraint allows.
+    _, _, vt = jnp.linalg.svd(g[None, :])
+    basis = vt[1:].T
+    reduced = basis.T @ fisher @ basis
+    cov = basis @ jnp.linalg.pinv(reduced, hermitian=True) @ basis.T
+    return CRLBResult(fisher, cov, g, gauge)
+
+
+def _rebuild(like: Hammerstein, theta):
+    na, nb, m = like.arx.na, like.arx.nb, like.backlash.m
+    bl = eqx.tree_at(lambda b: (b.c1, b.c2), like.backlash,
+                     (theta[na + nb:na + nb + m], theta[na + nb + m:]))
+    arx = eqx.tree_at(lambda a: (a.a, a.b), like.arx, (theta[:na], theta[na:na + nb]))
+    return Hammerstein(bl, arx)
+
+
+_crlb_jit = eqx.filter_jit(crlb_traceable)
+
+
+def crlb(model: Hammerstein, recordings, *, noise_std, criterion: str = "prediction",
+         h_m=None) -> CRLBResult:
+    """Fisher information and Cramér–Rao lower bound for the normalised parameters.
+
+    For white Gaussian noise of standard deviation ``sigma`` entering as the paper's
+    equation error ``xi`` (``criterion="prediction"``) the log-likelihood of the records
+    is that of the one-step prediction errors, so ``F = sum_t psi(t) psi(t)^T / sigma^2``
+    with ``psi = d y_hat / d theta`` (``jax.jacfwd`` through the predictor, evaluated on
+    the given records: the bound conditional on the observed regressors, which converges
+    to the expected Fisher information with the record length). With
+    ``criterion="simulation"`` the noise is white on the output and ``psi = d y_sim / d theta``.
+
+    The normalisation (``P2(-h_m) - P1(h_m) = 1`` with `h_m`, ``B(1) = 1`` without) is
+    one linear equality ``g^T theta = 1``, so the bound is the constrained CRLB
+    ``U (U^T F U)^+ U^T`` with ``U`` spanning the null space of ``g^T``.
+
+    **Arguments:**
+
+    - `model`: the true model, already normalised (``hbjax.normalise(model, h_m)`` or
+      :func:`hbjax.normalise_static_gain`); a model that violates the constraint is refused.
+    - `recordings`: ``(v, y)`` pair(s); with the prediction criterion ``y`` should be a
+      realisation of the model's output (the regressors contain it).
+    - `noise_std`: ``sigma`` (> 0).
+    - `criterion`, `h_m`: as :func:`hbjax.refine`.
+
+    **Returns:** a :class:`CRLBResult`.
+    """
+    require_x64("crlb")
+    check_model(model)
+    check_criterion(criterion)
+    recs = as_recordings(recordings)
+    h_m = check_h_m(h_m)
+    if not is_traced(noise_std):
+        try:
+            sigma = float(noise_std)
+        except (TypeError, ValueError):
+            raise TypeError(f"`noise_std` must be a real number, got {noise_std!r}.") from None
+        if not np.isfinite(sigma) or sigma <= 0:
+            raise ValueError(f"`noise_std` must be a finite number > 0, got {noise_std!r}.")
+    if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
+        _check_normalised(model, h_m)
+    return _crlb_jit(model, recs, noise_std=noise_std, criterion=criterion, h_m=h_m)
+
+
+def _check_normalised(model, h_m):
+    if h_m is None:
+        value, what, fix = float(jnp.sum(model.arx.b)), "B(1) = sum(b)", "hbjax.normalise_static_gain(model)"
+    else:
+        bl = model.backlash
+        value = float(bl.p2(-h_m) - bl.p1(h_m))
+        what, fix = "P2(-h_m) - P1(h_m)", "hbjax.normalise(model, h_m)"
+    if not abs(value - 1.0) <= 1e-8:
+        raise ValueError(
+            f"`model` is not normalised: {what} = {value:.6g}, expected 1; pass {fix} "
+            "(the bound depends on the normalisation)."
+        )

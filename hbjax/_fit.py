@@ -1,0 +1,232 @@
+"""Identification from ordinary data: vmapped multi-start refinement.
+
+The cost is non-convex in the backlash parameters (which input samples are inside the band
+changes with the band), so ``fit`` draws diverse backlash shapes, solves the linear block for
+each by least squares (the regression is linear in ``a, b`` once ``u`` is known: the
+separable structure Bai (2002) exploits), and refines all starts jointly under ``jax.vmap``.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from ._arx import ARX
+from ._backlash import Backlash
+from ._checks import is_traced, positive_int
+from ._config import require_x64
+from ._criteria import data_scale, play_sources
+from ._model import Hammerstein, lagged
+from ._params import flatten_params
+from ._recordings import as_recordings, check_criterion, total_samples
+from ._refine import RESULTS, RefinementError, refine_traceable
+
+
+class FitResult(eqx.Module):
+    """What :func:`fit` found.
+
+    - `model`: the best local optimum (lowest cost among converged starts), in the
+      static-gain normalisation ``B(1) = 1`` with ``P1`` the branch a rising input drives
+      the output onto (see :func:`fit`).
+    - `result`, `message`: result code of that start (:class:`hbjax._refine.RESULTS`).
+    - `stats`, `covariance`, `noise_std`, `branches_cross`: as :class:`RefineResult`.
+    - `starts_costs`: mean squared residual reached from every start, shape ``(starts,)``
+      (``inf`` where a start failed).
+    - `starts_params`: the local optima, shape ``(starts, p)`` (flatten order).
+    - `starts_result`: integer result code of every start.
+    - `spread`: standard deviation of the converged local optima per parameter.
+    - `hit_rate`: fraction of starts that reached the best cost (relative 1e-6).
+    - `best_index`: which start won.
+    """
+
+    model: Hammerstein
+    result: RESULTS
+    stats: dict
+    covariance: Float[Array, "p p"]
+    noise_std: Float[Array, ""]
+    branches_cross: Bool[Array, ""]
+    starts_costs: Float[Array, " starts"]
+    starts_params: Float[Array, "starts p"]
+    starts_result: Int[Array, " starts"]
+    spread: Float[Array, " p"]
+    hit_rate: Float[Array, ""]
+    best_index: Int[Array, ""]
+
+    @property
+    def message(self) -> str:
+        return RESULTS[self.result] or "success"
+
+    @property
+    def std(self):
+        return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance), 0.0))
+
+
+def random_backlash(key, m: int, scale) -> Backlash:
+    """A random band in ``x = v / scale``: branches ``o -+ w + x + sum_i d_i x^i`` with
+    half-gap ``w`` log-uniform in [0.02, 1] (of the input range), offset ``o`` within the
+    gap and random curvature. The scale and sign of the slope need not vary: the linear
+    least squares of :func:`arx_given_backlash` absorbs them into ``b``."""
+    k_w, k_o, k_d, k_e = jax.random.split(key, 4)
+    w = jnp.exp(jax.random.uniform(k_w, minval=jnp.log(0.02), maxval=0.0))
+    o = jax.random.uniform(k_o, minval=-0.5, maxval=0.5) * w
+    base = jnp.zeros(m).at[0].set(o)
+    if m > 1:
+        base = base.at[1].set(1.0)
+    if m > 2:
+        base = base.at[2:].set(0.3 * jax.random.normal(k_d, (m - 2,)))
+    tilt = jnp.zeros(m)
+    if m > 1:
+        tilt = tilt.at[1:].set(0.1 * w * jax.random.normal(k_e, (m - 1,)))
+    powers = scale ** jnp.arange(m)
+    c1 = (base - tilt).at[0].add(-w) / powers
+    c2 = (base + tilt).at[0].add(w) / powers
+    return Backlash(c1, c2)
+
+
+def arx_given_backlash(backlash: Backlash, recordings, na: int, nb: int) -> ARX:
+    """Least-squares ``a, b`` of the equation-error regression (eq. (10)) with
+    ``u = HB(v)`` known: linear in ``a, b``, solved over all records at once."""
+    gram = jnp.zeros((na + nb, na + nb))
+    rhs = jnp.zeros(na + nb)
+    for v, y in recordings:
+        p1, p2 = backlash.p1(v), backlash.p2(v)
+        u, _ = play_sources(jnp.minimum(p1, p2), jnp.maximum(p1, p2))
+        cols = [-lagged(y, i + 1) for i in range(na)] + [lagged(u, i + 1) for i in range(nb)]
+        phi = jnp.stack(cols, axis=1)
+        gram = gram + phi.T @ phi
+        rhs = rhs + phi.T @ y
+    scale = jnp.sqrt(jnp.maximum(jnp.diagonal(gram), 1e-300))
+    theta = jnp.linalg.lstsq(gram / jnp.outer(scale, scale), rhs / scale)[0] / scale
+    return ARX(theta[:na], theta[na:])
+
+
+def canonical_labels(model: Hammerstein, recordings) -> tuple[Hammerstein, Array]:
+    """Swap ``c1``/``c2`` so that ``P1`` is the branch a rising input drives the output
+    onto: the lower one when the band rises with ``v``, the upper one when it falls
+    (``L = min``, ``H = max`` make the labels otherwise interchangeable)."""
+    bl = model.backlash
+    v_all = jnp.concatenate([v for v, _ in recordings])
+    lo, hi = jnp.min(v_all), jnp.max(v_all)
+    rising = (bl.p1(hi) + bl.p2(hi)) >= (bl.p1(lo) + bl.p2(lo))
+    p1_above = jnp.mean(bl.p1(v_all) - bl.p2(v_all)) > 0
+    swap = rising == p1_above
+    c1 = jnp.where(swap, bl.c2, bl.c1)
+    c2 = jnp.where(swap, bl.c1, bl.c2)
+    return Hammerstein(Backlash(c1, c2), model.arx), swap
+
+
+def _swap_covariance(cov, swap, na, nb, m):
+    off = na + nb
+    perm = np.arange(off + 2 * m)
+    perm[off:off + m], perm[off + m:] = np.arange(off + m, off + 2 * m), np.arange(off, off + m)
+    swapped = cov[perm][:, perm]
+    return jnp.where(swap, swapped, cov)
+
+
+def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32,
+                  criterion: str = "prediction", max_steps: int = 256,
+                  rtol: float = 1e-7, atol: float = 1e-7) -> FitResult:
+    """Traceable core of :func:`fit` (recordings a tuple of ``(v, y)`` arrays)."""
+    scale = data_scale(recordings)
+    keys = jax.random.split(key, starts)
+
+    def one(k):
+        bl = random_backlash(k, m, scale)
+        init = Hammerstein(bl, arx_given_backlash(bl, recordings, na, nb))
+        return refine_traceable(init, recordings, criterion=criterion, h_m=None,
+                                max_steps=max_steps, rtol=rtol, atol=atol)
+
+    res = jax.vmap(one)(keys)
+    ok = res.result._value == RESULTS.successful._value
+    costs = jnp.where(ok, res.stats["cost"], jnp.inf)
+    # If no start converged, report the least bad one with its failure code.
+    best = jnp.where(jnp.any(ok), jnp.argmin(costs), jnp.argmin(
+        jnp.where(jnp.isfinite(res.stats["cost"]), res.stats["cost"], jnp.inf)))
+    pick = lambda x: x[best]  # noqa: E731
+    model, swap = canonical_labels(jax.tree_util.tree_map(pick, res.model), recordings)
+    params = jax.vmap(lambda mdl: flatten_params(canonical_labels(mdl, recordings)[0]))(
+        res.model)
+    n_ok = jnp.maximum(jnp.sum(ok), 1)
+    mean = jnp.sum(jnp.where(ok[:, None], params, 0.0), axis=0) / n_ok
+    spread = jnp.sqrt(jnp.sum(jnp.where(ok[:, None], (params - mean) ** 2, 0.0), axis=0) / n_ok)
+    hits = ok & (costs <= costs[best] * (1 + 1e-6))
+    return FitResult(
+        model, jax.tree_util.tree_map(pick, res.result),
+        jax.tree_util.tree_map(pick, res.stats),
+        _swap_covariance(res.covariance[best], swap, na, nb, m), res.noise_std[best],
+        res.branches_cross[best], costs, params, res.result._value, spread,
+        jnp.sum(hits) / starts, best,
+    )
+
+
+_fit_jit = eqx.filter_jit(fit_traceable)
+
+
+def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
+        criterion: str = "prediction", max_steps: int = 256, throw: bool = True) -> FitResult:
+    """Identify an HB-Hammerstein model from ordinary recordings (steps, multisines, random
+    levels; no special input), by multi-start nonlinear least squares.
+
+    Each start draws a random band (:func:`random_backlash`: half-gap log-uniform over
+    two decades of the input range, random offset and curvature), takes the linear block
+    by least squares given that band, and is refined by :func:`hbjax.refine`'s
+    Levenberg–Marquardt; the ``starts`` refinements run together under ``jax.vmap``. The
+    best converged local optimum is returned with the spread of all of them.
+
+    Normalisation (no ``h_m`` is needed): ``B(1) = b_1 + ... + b_nb = 1`` (all the static
+    gain in the backlash, assumption A5), and ``P1`` is the branch a rising input drives
+    the output onto (:func:`canonical_labels`). Compare with a true model through
+    :func:`hbjax.normalise_static_gain`; map to the paper's normalisation with
+    :func:`hbjax.normalise` when ``h_m`` is known.
+
+    **Arguments:**
+
+    - `recordings`: one ``(v, y)`` pair or a list of pairs.
+    - `na`, `nb`, `m`: orders of ``A``, ``B`` and the number of coefficients per branch.
+    - `key`: a JAX PRNG key (the starts).
+    - `starts`: number of starts.
+    - `criterion`: ``"prediction"`` (equation error) or ``"simulation"`` (output error).
+    - `max_steps`: Levenberg–Marquardt steps per start.
+    - `throw`: raise :class:`hbjax.RefinementError` if no start converged.
+
+    **Returns:** a :class:`FitResult`.
+    """
+    require_x64("fit")
+    na = positive_int(na, "na", minimum=0)
+    nb = positive_int(nb, "nb")
+    m = positive_int(m, "m")
+    starts = positive_int(starts, "starts")
+    max_steps = positive_int(max_steps, "max_steps")
+    check_criterion(criterion)
+    if not (isinstance(key, jax.Array) and (jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+                                            or (key.dtype == jnp.uint32 and key.shape == (2,)))):
+        raise TypeError(f"`key` must be a JAX PRNG key (jax.random.key or PRNGKey), got {key!r}.")
+    recs = as_recordings(recordings)
+    q = na + nb + 2 * m - 1
+    if total_samples(recs) <= 2 * q:
+        raise ValueError(
+            f"`recordings` hold {total_samples(recs)} samples; fitting {q} free parameters "
+            f"needs more than {2 * q}."
+        )
+    res = _fit_jit(recs, key, na=na, nb=nb, m=m, starts=starts, criterion=criterion,
+                   max_steps=max_steps)
+    if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
+        raise RefinementError(
+            f"fit: no start converged ({res.message}); try more `starts` or `max_steps`."
+        )
+    return res
+
+
+def normalise_static_gain(model: Hammerstein) -> Hammerstein:
+    """The model in the static-gain normalisation of :func:`fit` / :func:`refine` without
+    ``h_m``: ``(A, B / B(1), P * B(1))`` so that ``B(1) = 1`` (same input-output
+    behaviour, ``u0 = 0``)."""
+    if not isinstance(model, Hammerstein):
+        raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    gain = jnp.sum(model.arx.b)
+    if not is_traced(gain) and float(gain) == 0.0:
+        raise ValueError("`model` has B(1) = sum(b) = 0: the static-gain normalisation "
+                         "cannot be applied (assumption A5).")
+    bl = model.backlash
+    return Hammerstein(Backlash(bl.c1 * gain, bl.c2 * gain), ARX(model.arx.a, model.arx.b / gain))

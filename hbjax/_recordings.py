@@ -1,0 +1,107 @@
+"""Argument checks shared by refine, fit, separable_ls and crlb (eager, at call time)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._checks import as_float_array, check_finite, is_traced
+from ._criteria import CRITERIA
+from ._model import Hammerstein
+
+
+def _is_pair(x) -> bool:
+    return isinstance(x, (tuple, list)) and len(x) == 2 and not isinstance(x[0], (tuple, list))
+
+
+def as_recordings(recordings, name: str = "recordings"):
+    """One ``(v, y)`` pair, an object with ``.v`` and ``.y``, or a list of those -> a tuple
+    of ``(v, y)`` float64 pairs, each finite, 1-D, of equal lengths within the pair."""
+    if hasattr(recordings, "v") and hasattr(recordings, "y"):
+        items = [(recordings.v, recordings.y)]
+    elif _is_pair(recordings):
+        items = [tuple(recordings)]
+    elif isinstance(recordings, (tuple, list)) and len(recordings) > 0:
+        items = []
+        for k, rec in enumerate(recordings):
+            if hasattr(rec, "v") and hasattr(rec, "y"):
+                rec = (rec.v, rec.y)
+            if not _is_pair(rec):
+                raise TypeError(
+                    f"`{name}[{k}]` must be a (v, y) pair of 1-D arrays, got "
+                    f"{type(rec).__name__}."
+                )
+            items.append(tuple(rec))
+    else:
+        raise TypeError(
+            f"`{name}` must be a (v, y) pair or a non-empty list of (v, y) pairs, got "
+            f"{type(recordings).__name__}."
+        )
+    out = []
+    for k, (v, y) in enumerate(items):
+        tag = f"{name}[{k}]" if len(items) > 1 else name
+        v = as_float_array(v, f"{tag} v", ndim=1)
+        y = as_float_array(y, f"{tag} y", ndim=1)
+        if v.shape[0] != y.shape[0]:
+            raise ValueError(
+                f"records must have equal lengths: in `{tag}`, v has {v.shape[0]} samples "
+                f"and y has {y.shape[0]}."
+            )
+        if v.shape[0] < 2:
+            raise ValueError(f"`{tag}` must hold at least 2 samples, got {v.shape[0]}.")
+        out.append((check_finite(v, f"{tag} v"), check_finite(y, f"{tag} y")))
+    return tuple(out)
+
+
+def total_samples(recordings) -> int:
+    return sum(int(v.shape[0]) for v, _ in recordings)
+
+
+def check_criterion(criterion) -> str:
+    if criterion not in CRITERIA:
+        raise ValueError(f"`criterion` must be one of {CRITERIA}, got {criterion!r}.")
+    return criterion
+
+
+def check_h_m(h_m):
+    if h_m is None:
+        return None
+    if is_traced(h_m):
+        return h_m
+    try:
+        val = float(h_m)
+    except (TypeError, ValueError):
+        raise TypeError(f"`h_m` must be a real number or None, got {h_m!r}.") from None
+    if not np.isfinite(val) or val <= 0:
+        raise ValueError(f"`h_m` must be a finite number > 0, got {h_m!r}.")
+    return val
+
+
+def check_model(model, name: str = "model") -> None:
+    """A concrete-shaped, unbatched :class:`hbjax.Hammerstein`."""
+    if not isinstance(model, Hammerstein):
+        raise TypeError(f"`{name}` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    for field, arr in (("a", model.arx.a), ("b", model.arx.b), ("c1", model.backlash.c1),
+                       ("c2", model.backlash.c2)):
+        if jnp.ndim(arr) != 1:
+            raise ValueError(
+                f"`{name}` must be a single model: its `{field}` has shape "
+                f"{tuple(jnp.shape(arr))} (1-D expected; vmap refine_traceable for batches)."
+            )
+    if model.backlash.c1.shape != model.backlash.c2.shape:
+        raise ValueError(
+            f"`{name}` has branches of different sizes: c1 {model.backlash.c1.shape}, "
+            f"c2 {model.backlash.c2.shape}."
+        )
+    leaves = [x for x in jax.tree_util.tree_leaves(model) if not is_traced(x)]
+    if any(not np.all(np.isfinite(np.asarray(x))) for x in leaves):
+        raise ValueError(f"`{name}` has non-finite parameters.")
+
+
+def check_orders(model, na, nb, m, name: str = "model") -> None:
+    """Refuse an initial model whose orders differ from the requested ones."""
+    got = (model.arx.na, model.arx.nb, model.backlash.m)
+    want = (na, nb, m)
+    if any(w is not None and g != w for g, w in zip(got, want)):
+        raise ValueError(
+            f"`{name}` has orders (na, nb, m) = {got}, but {tuple(want)} were requested."
+        )
