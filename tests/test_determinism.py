@@ -135,3 +135,23 @@ def test_same_key_same_bits_within_a_process():
     assert first.tobytes() == second.tobytes()
     other = 0.1 * jax.random.normal(jax.random.key(4), (500,))
     assert np.asarray(hbjax.simulate(model, v, other)).tobytes() != first.tobytes()
+
+
+def test_diagnose_gives_the_same_report_twice():
+    # The diagnosis runs batched fits and residual tests; two runs must agree exactly.
+    import json
+
+    import hbjax
+
+    rec = hbjax.concealed_recording("output_saturation", n=600, key=jax_key(7))
+    effects = ["output_saturation", "extra_delay"]
+    first = hbjax.diagnose(rec.model, rec.v, rec.y, effects=effects)
+    second = hbjax.diagnose(rec.model, rec.v, rec.y, effects=effects)
+    assert json.dumps(first.to_dict(), sort_keys=True) == json.dumps(second.to_dict(), sort_keys=True)
+    assert first.mismatch and first.findings
+
+
+def jax_key(seed):
+    import jax
+
+    return jax.random.key(seed)
