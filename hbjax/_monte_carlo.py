@@ -10,7 +10,7 @@ bounded whatever the number of realisations.
 import inspect
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp

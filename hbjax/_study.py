@@ -47,8 +47,9 @@ class Study(eqx.Module):
     - `n_valid`, `n_failed`: realisations used / excluded per length, shape ``(L,)``.
     - `codes`: result code of every realisation, shape ``(L, R)`` (see `failure_counts`).
     - `estimates`: raw normalised estimates ``(L, R, P)`` if ``keep_estimates=True``, else None.
-    - `slope`, `slope_ci`: fitted slope of ``log RMSE`` vs ``log N`` per parameter and its
-      95% interval ``(P, 2)``; -1/2 for a consistent estimator at the ``sqrt(N)`` rate.
+    - `slope`, `slope_stderr`, `slope_ci`: fitted slope of ``log RMSE`` vs ``log N`` per
+      parameter, its standard error (Monte Carlo uncertainty, delta method) and 95% interval
+      ``(P, 2)``; -1/2 for a consistent estimator at the ``sqrt(N)`` rate.
     - `compile_seconds`, `run_seconds`: per length, compilation and execution wall time.
     - `realisations`, `noise_std`, `estimator`, `noise`, `n_devices`, `chunk_size`: settings.
     """
