@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -151,3 +152,47 @@ def test_montecarlo_config_errors(tmp_path):
     assert "unknown config keys ['realisation']" in proc.stderr
     proc = run("montecarlo", "--config", "cfg.json", "--out", "cfg.json", cwd=tmp_path, check=False)
     assert proc.returncode == 1 and "would replace the config file" in proc.stderr
+
+
+@pytest.mark.slow
+def test_diagnose_reports_and_saves_the_extended_model(tmp_path, system):
+    from hbjax._effects import OutputSaturation
+
+    rng = np.random.default_rng(0)
+    v = np.repeat(rng.uniform(-6, 6, 100), 8)
+    truth = OutputSaturation(system, None, jnp.asarray(12.0))
+    y = hbjax.simulate(truth, v, 0.1 * rng.standard_normal(v.size))
+    (tmp_path / "rec.csv").write_text(
+        "time,drive,level\n" + "".join(f"{k},{a!r},{b!r}\n" for k, (a, b) in
+                                       enumerate(zip(v.tolist(), np.asarray(y).tolist())))
+    )
+    hbjax.save_model(tmp_path / "nominal.json", system)
+    proc = run("diagnose", "--model", "nominal.json", "rec.csv", "--input", "drive",
+               "--output", "level", "--effects", "output_saturation", "--json", "report.json",
+               "--plot", "report.png", "--save-model", "best.json", cwd=tmp_path)
+    assert "1. output_saturation" in proc.stdout
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["format"] == "hbjax-diagnosis" and report["report"]["best"] == "output_saturation"
+    best = hbjax.load_model(tmp_path / "best.json")
+    assert isinstance(best, OutputSaturation) and best.lower is None
+    assert abs(float(best.upper) - 12.0) < 0.1
+    assert (tmp_path / "report.png").read_bytes()[:4] == b"\x89PNG"
+    shown = run("show", "best.json", cwd=tmp_path).stdout
+    assert "OutputSaturation" in shown and "upper" in shown
+
+
+def test_identify_fit_on_ordinary_recordings(tmp_path, system):
+    rng = np.random.default_rng(1)
+    records = []
+    for k in range(2):
+        v = np.repeat(rng.uniform(-6, 6, 50), 6)
+        y = np.asarray(hbjax.simulate(system, v, 0.05 * rng.standard_normal(v.size)))
+        hbjax.save_recording(tmp_path / f"r{k}.csv", hbjax.Recording(v, y, dt=0.5))
+        records.append(f"r{k}.csv")
+    # Columns by header name: save_recording writes t, v, y when dt is known.
+    proc = run("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, *records, "--input", "v",
+               "--output", "y", "--starts", 8, "--out", "fit.json", cwd=tmp_path)
+    assert "2 recording(s), 600 samples" in proc.stdout
+    model = hbjax.load_model(tmp_path / "fit.json")
+    np.testing.assert_allclose(hbjax.flatten_params(model),
+                               hbjax.flatten_params(hbjax.normalise_static_gain(system)), atol=0.05)

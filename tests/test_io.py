@@ -349,3 +349,14 @@ def test_corrupted_model_file_gives_clear_error(tmp_path, case):
 def test_model_file_is_strict_json(system):
     text = model_to_json(make_extension(system))
     json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+
+
+@pytest.mark.parametrize("effect", sorted(hbjax.EFFECTS))
+def test_diagnosis_extensions_round_trip(tmp_path, effect):
+    """Every extended model of the diagnosis is a model file like any other."""
+    rec = hbjax.concealed_recording(effect, n=200, key=jax.random.PRNGKey(1))
+    p = hbjax.save_model(tmp_path / "m.json", rec.true_model)
+    back = hbjax.load_model(p)
+    assert_bitwise_equal(back, rec.true_model)
+    assert json.loads(p.read_text())["kind"] == type(rec.true_model).__name__
+    np.testing.assert_array_equal(hbjax.simulate(back, rec.v), hbjax.simulate(rec.true_model, rec.v))
