@@ -118,11 +118,25 @@ def render_object(qualname: str, obj, level: str = "###") -> list[str]:
         lines.append(f"{level} `{qualname}` (module)\n")
         first = clean(obj.__doc__).split("\n\n")[0]
         lines.append(f"{first} See [`{qualname}` functions](#{anchor(qualname)}-functions).\n")
-    else:
+    elif callable(obj):
         lines.append(f"{level} `{qualname}`\n")
         lines.append(f"```python\n{qualname}{signature(obj)}\n```\n")
         lines.append(clean(obj.__doc__) + "\n")
+    else:
+        lines.append(f"{level} `{qualname}` ({type(obj).__name__})\n")
+        lines.append(data_comment(qualname.rsplit(".", 1)[-1]) + "\n")
+        if isinstance(obj, dict):
+            lines.append("Keys: " + ", ".join(f"`{k}`" for k in obj) + ".\n")
     return lines
+
+
+def data_comment(name: str) -> str:
+    """The ``#:`` comment lines above ``NAME = ...`` in the hbjax sources (Sphinx style)."""
+    for path in sorted((ROOT / "hbjax").glob("*.py")):
+        match = re.search(rf"((?:^#:.*\n)+)^{re.escape(name)}\b.*=", path.read_text(), re.M)
+        if match:
+            return clean(" ".join(line[2:].strip() for line in match.group(1).splitlines()))
+    return "*(no description)*"
 
 
 def anchor(text: str) -> str:
