@@ -68,7 +68,12 @@ def signature(obj) -> str:
     # Default values that print as memory addresses would make the file change every run.
     text = re.sub(r" at 0x[0-9a-f]+", "", text)
     # Public spellings of types: hbjax._model.Hammerstein -> hbjax.Hammerstein, etc.
-    text = re.sub(r"\bhbjax\._[a-z_]+\.([A-Z]\w*)", r"hbjax.\1", text)
+    public = importlib.import_module("hbjax")
+    text = re.sub(
+        r"\bhbjax\._[a-z_]+\.([A-Z]\w*)",
+        lambda m: f"hbjax.{m.group(1)}" if hasattr(public, m.group(1)) else m.group(0),
+        text,
+    )
     text = re.sub(r"\b(?:jax\.)?jaxlib\._jax\.(?:Array|ArrayImpl)", "Array", text)
     text = re.sub(r"\bjaxtyping\.", "", text)
     return text
