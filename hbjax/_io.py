@@ -431,6 +431,8 @@ def atomic_write(path, data: str | bytes, *, overwrite: bool = False) -> pathlib
     payload = data.encode("utf-8") if isinstance(data, str) else data
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent)
     try:
+        # mkstemp makes the file private (0600); give it the mode an ordinary open() would.
+        os.chmod(tmp, _default_mode())
         with os.fdopen(fd, "wb") as fh:
             fh.write(payload)
             fh.flush()
@@ -454,6 +456,12 @@ def atomic_write(path, data: str | bytes, *, overwrite: bool = False) -> pathlib
             os.unlink(tmp)
         raise
     return p
+
+
+def _default_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
 
 
 def format_float(x: float) -> str:

@@ -360,3 +360,12 @@ def test_diagnosis_extensions_round_trip(tmp_path, effect):
     assert_bitwise_equal(back, rec.true_model)
     assert json.loads(p.read_text())["kind"] == type(rec.true_model).__name__
     np.testing.assert_array_equal(hbjax.simulate(back, rec.v), hbjax.simulate(rec.true_model, rec.v))
+
+
+def test_written_files_get_ordinary_permissions(tmp_path, system):
+    umask = os.umask(0o022)
+    try:
+        p = hbjax.save_model(tmp_path / "m.json", system)
+    finally:
+        os.umask(umask)
+    assert p.stat().st_mode & 0o777 == 0o644
