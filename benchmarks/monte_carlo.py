@@ -122,6 +122,7 @@ def main():
     parser.add_argument("--no-write", action="store_true")
     args = parser.parse_args()
     R, T = args.realisations, args.length
+    load_before = os.getloadavg()[0]
     model, design = hbjax.default_system(), hbjax.default_design()
     s = peers.setup(model, design, T)
     cores = os.cpu_count()
@@ -188,6 +189,8 @@ def main():
               f"{mem['peak_kib'] / 2**20:.2f} GiB (after import {mem['base_kib'] / 2**20:.2f} GiB),"
               f" {mem['wall']:.0f} s, chunk {mem['chunk']}/device, {mem['n_valid']} valid")
 
+    load_after = os.getloadavg()[0]
+    print(f"1-minute load average: {load_before:.1f} at start, {load_after:.1f} at end")
     if args.no_write:
         return
     jax_rows = "\n".join(
@@ -200,7 +203,9 @@ def main():
 Machine: {describe()}. Default system and design (n=2, m=3, h_m=4), white equation noise
 std {NOISE_STD}, **{R} realisations x 3 experiments x T = {T} samples**, full closed-form
 identification (offset with transient search, LS (26), Vandermonde (45)-(46), diagnostics and
-result codes). Best of 3 runs after compilation; the machine is shared, so timings are noisy.
+result codes). Best of 3 runs after compilation. The machine is shared with other jobs
+(1-minute load average {load_before:.1f} at the start of this run, {load_after:.1f} at the end,
+on {cores} cores), so absolute timings are noisy; all sides ran under the same conditions.
 
 | implementation | compile (s) | run (s) | realisations/s | vs NumPy | vs Numba parallel |
 |---|---|---|---|---|---|
