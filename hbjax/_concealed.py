@@ -114,15 +114,15 @@ def _conceal(effect, base, v, y0, u, rng, n):
         return fx.OutputSaturation(base, None, jnp.asarray(upper)), base, \
             {"lower": None, "upper": upper}
     if effect == "input_saturation":
-        upper = float(np.quantile(u, rng.uniform(0.8, 0.9)))
-        lower = float(np.quantile(u, rng.uniform(0.1, 0.2)))
+        upper = float(np.quantile(u, rng.uniform(0.75, 0.85)))
+        lower = float(np.quantile(u, rng.uniform(0.15, 0.25)))
         return fx.InputSaturation(base, jnp.asarray(lower), jnp.asarray(upper)), base, \
             {"lower": lower, "upper": upper}
     if effect == "extra_delay":
         d = int(rng.integers(1, 4))
         return fx.ExtraDelay(base, d), base, {"delay": d}
     if effect == "unmodeled_dynamics":
-        p, z = 0.7, 0.4  # missing pole at 0.7 and zero at 0.4, DC gain kept by the nominal
+        p, z = 0.8, 0.3  # missing pole at 0.8 and zero at 0.3, DC gain kept by the nominal
         A = np.convolve(np.concatenate([[1.0], a]), [1.0, -p])
         B = np.convolve(b, [1.0, -z])
         true = fx.UnmodeledDynamics(Hammerstein(base.backlash, ARX(A[1:-1], B[:-1])),
@@ -157,7 +157,7 @@ def _conceal(effect, base, v, y0, u, rng, n):
         return fx.CoulombFriction(base, jnp.asarray(force), width), base, {"force": force}
     if effect == "branch_degree":
         scale = float(np.max(np.abs(v)))
-        extra = 0.15 * float(np.max(np.abs(u)))
+        extra = 0.25 * float(np.max(np.abs(u)))
         return fx.BranchDegree(base, jnp.asarray(extra), jnp.asarray(extra), scale), base, \
             {"c_extra": extra / scale ** base.backlash.m}
     raise ValueError(effect)  # pragma: no cover

@@ -19,28 +19,30 @@ import optimistix as optx
 from ._effects_kernel import Layout, fast_jacobian, fast_prediction_error, prediction_error
 
 
-def _masked_eps(lay, theta, ints, consts, v, y, burn, output_static=True):
-    eps = fast_prediction_error(lay, theta, ints, consts, v, y, output_static=output_static)
+def _masked_eps(lay, theta, ints, consts, v, y, burn, output_static=True,
+                criterion="prediction"):
+    eps = fast_prediction_error(lay, theta, ints, consts, v, y, output_static=output_static,
+                                criterion=criterion)
     eps = jnp.where(jnp.arange(y.shape[0]) >= burn, eps, 0.0)
     # A diverging candidate (an unstable linear block) must not poison the batch.
     return jnp.where(jnp.isfinite(eps), eps, 1e6)
 
 
-def _masked_jacobian(lay, theta, S, ints, consts, v, y, burn, output_static):
+def _masked_jacobian(lay, theta, S, ints, consts, v, y, burn, output_static, criterion):
     """Jacobian of :func:`_masked_eps` in the directions ``S``: written out by hand where
     the output map is the identity, forward-mode autodiff otherwise."""
     if output_static:
         J = jax.jacfwd(lambda d: _masked_eps(lay, theta + S @ d, ints, consts, v, y, burn,
-                                             True))(jnp.zeros(S.shape[1]))
+                                             True, criterion))(jnp.zeros(S.shape[1]))
     else:
-        J = fast_jacobian(lay, theta, ints, consts, v, y) @ S
+        J = fast_jacobian(lay, theta, ints, consts, v, y, criterion=criterion) @ S
         J = jnp.where((jnp.arange(y.shape[0]) >= burn)[:, None], J, 0.0)
     return jnp.where(jnp.isfinite(J), J, 0.0)
 
 
 @eqx.filter_jit
 def fit_batch(lay: Layout, theta0, S, ints, consts, v, y, burn: int, max_steps: int,
-              output_static: bool):
+              output_static: bool, criterion: str = "prediction"):
     """Levenberg-Marquardt from each ``theta0[i]`` over the columns of ``S[i]``.
 
     Shapes: ``theta0 (B, P)``, ``S (B, P, K)``, ``ints (B, 2)``; ``v, y`` the fitting
@@ -49,7 +51,8 @@ def fit_batch(lay: Layout, theta0, S, ints, consts, v, y, burn: int, max_steps: 
 
     def one(th0, s, it):
         def eps(delta):
-            return _masked_eps(lay, th0 + s @ delta, it, consts, v, y, burn, output_static)
+            return _masked_eps(lay, th0 + s @ delta, it, consts, v, y, burn, output_static,
+                               criterion)
 
         # The solver linearises the residual and applies/transposes that linear map many
         # times per step; a JVP that materialises the (T, K) Jacobian once by forward mode
@@ -62,7 +65,7 @@ def fit_batch(lay: Layout, theta0, S, ints, consts, v, y, burn: int, max_steps: 
         @resid.defjvp
         def _jvp(primals, tangents):
             J = _masked_jacobian(lay, th0 + s @ primals[0], s, it, consts, v, y, burn,
-                                 output_static)
+                                 output_static, criterion)
             return eps(primals[0]), J @ tangents[0]
 
         def fn(delta, _):
@@ -77,27 +80,27 @@ def fit_batch(lay: Layout, theta0, S, ints, consts, v, y, burn: int, max_steps: 
 
 
 @eqx.filter_jit
-def sse_batch(lay: Layout, theta, ints, consts, v, y, burn: int):
+def sse_batch(lay: Layout, theta, ints, consts, v, y, burn: int, criterion: str = "prediction"):
     """Sum of squared prediction errors for a batch of extended parameter vectors."""
-    return jax.vmap(lambda th, it: jnp.sum(_masked_eps(lay, th, it, consts, v, y, burn) ** 2))(
-        theta, ints)
+    return jax.vmap(lambda th, it: jnp.sum(
+        _masked_eps(lay, th, it, consts, v, y, burn, True, criterion) ** 2))(theta, ints)
 
 
 @eqx.filter_jit
-def evaluate_batch(lay: Layout, theta, ints, consts, v, y):
+def evaluate_batch(lay: Layout, theta, ints, consts, v, y, criterion: str = "prediction"):
     """``(fast eps, exact eps, y_sim, u_used)`` over the whole record for a batch of
     candidates (the exact ones from the simulator's scan)."""
 
     def one(th, it):
-        return (fast_prediction_error(lay, th, it, consts, v, y),
+        return (fast_prediction_error(lay, th, it, consts, v, y, criterion=criterion),
                 *prediction_error(lay, th, it, consts, v, y))
 
     return jax.vmap(one)(theta, ints)
 
 
 @eqx.filter_jit
-def jacobian(lay: Layout, theta, S, ints, consts, v, y, burn: int):
+def jacobian(lay: Layout, theta, S, ints, consts, v, y, burn: int, criterion: str = "prediction"):
     """``(eps, d eps / d delta)`` at ``delta = 0`` (for the change-point scan)."""
 
-    eps = _masked_eps(lay, theta, ints, consts, v, y, burn, False)
-    return eps, _masked_jacobian(lay, theta, S, ints, consts, v, y, burn, False)
+    eps = _masked_eps(lay, theta, ints, consts, v, y, burn, False, criterion)
+    return eps, _masked_jacobian(lay, theta, S, ints, consts, v, y, burn, False, criterion)

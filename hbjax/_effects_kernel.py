@@ -221,11 +221,12 @@ def _iir_fft(a, num):
 
 
 def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
-                          output_static: bool = True):
+                          output_static: bool = True, criterion: str = "prediction"):
     """Prediction error of the extended model for fitting (see the comment above);
     equals ``whiten(y, simulate_full(...))`` for any single extension, up to the start-up
     transient. ``output_static=False`` drops the output clip and curvature (and the FFT
-    they need) for candidates that keep them neutral."""
+    they need) for candidates that keep them neutral. ``criterion="simulation"`` returns
+    the output error ``y - y_sim = w / A`` instead (no noise model)."""
     na, nb, m = lay.na, lay.nb, lay.m
     g = lambda name: lay.get(theta, name)  # noqa: E731
     T = v.shape[0]
@@ -259,6 +260,8 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
         shaped = y_lin + consts[2] * (g("nl2")[0] * z**2 + g("nl3")[0] * z**3) + add
         r = r - (jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) - y_lin - add)
     w = r - bu + sum((a[i] + s * da[i]) * _lag(r, i + 1) for i in range(na + 1))
+    if criterion == "simulation":
+        return _iir_fft(a, w)
     nd = g("noise_d")
     return w + nd[0] * _lag(w, 1) + nd[1] * _lag(w, 2)
 
@@ -267,7 +270,14 @@ def _lag_rows(x, k):
     return jnp.concatenate([jnp.zeros((k,) + x.shape[1:], x.dtype), x[:-k]])
 
 
-def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0):
+def _iir_fft_cols(a, num):
+    T = num.shape[0]
+    nfft = 1 << (2 * T - 1).bit_length()
+    den = jnp.fft.rfft(jnp.concatenate([jnp.ones(1), a]), nfft)
+    return jnp.fft.irfft(jnp.fft.rfft(num, nfft, axis=0) / den[:, None], nfft, axis=0)[:T]
+
+
+def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="prediction"):
     """``d eps / d theta`` of :func:`fast_prediction_error` with ``output_static=False``,
     shape ``(T, P)``, by the chain rule written out on whole records (forward-mode
     autodiff of the same expression costs an order of magnitude more on a CPU: dozens
@@ -348,6 +358,13 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0):
         Dw = Dw.at[:, slots["a"][0] + i].add(_lag(r, i + 1))
         Dw = Dw.at[:, slots["da"][0] + i].add(s * _lag(r, i + 1))
     Dw = Dw.at[:, slots["a_extra"][0]].add(_lag(r, na + 1))
+    if criterion == "simulation":
+        # e = w / A:  de = (dw - (dA) e) / A
+        e = _iir_fft(a, w)
+        for i in range(na):
+            Dw = Dw.at[:, slots["a"][0] + i].add(-_lag(e, i + 1))
+        Dw = Dw.at[:, slots["a_extra"][0]].add(-_lag(e, na + 1))
+        return _iir_fft_cols(a, Dw)
     nd = g("noise_d")
     De = Dw + nd[0] * _lag_rows(Dw, 1) + nd[1] * _lag_rows(Dw, 2)
     De = De.at[:, slots["noise_d"][0]].add(_lag(w, 1))
