@@ -109,8 +109,13 @@ def _run_devices(count):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_bitwise_identical_on_one_and_four_devices():
-    one, four = _run_devices(1), _run_devices(4)
+@pytest.fixture(scope="module")
+def one_device_run():
+    return _run_devices(1)
+
+
+def test_bitwise_identical_on_one_and_four_devices(one_device_run):
+    one, four = one_device_run, _run_devices(4)
     assert (one["devices"], four["devices"]) == (1, 4)
     assert (one["n_devices"], four["n_devices"]) == (1, 4)
     assert one["estimates"] == four["estimates"]
@@ -291,7 +296,7 @@ _PROCESS_SCRIPT = textwrap.dedent("""
 
 
 @pytest.mark.slow
-def test_two_processes_with_jax_distributed_match_one_process():
+def test_two_processes_with_jax_distributed_match_one_process(one_device_run):
     # The multi-host recipe of docs/monte_carlo.md, on one machine: two processes with one
     # CPU device each form a 2-device mesh and reproduce the single-process numbers.
     import socket
@@ -304,7 +309,7 @@ def test_two_processes_with_jax_distributed_match_one_process():
                                str(i)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True) for i in range(2)]
     outs = [json.loads(p.communicate(timeout=300)[0].strip().splitlines()[-1]) for p in procs]
-    single = _run_devices(1)
+    single = one_device_run
     assert [o["devices"] for o in outs] == [2, 2]
     assert outs[0]["estimates"] == outs[1]["estimates"] == single["estimates"]
 
