@@ -44,7 +44,8 @@ def crlb_traceable(model: Hammerstein, recordings, *, noise_std, criterion="pred
     na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
     gauge = STATIC_GAIN if h_m is None else PAPER
     par = Parametrisation(na, nb, m, gauge, jnp.asarray(1.0),
-                          jnp.asarray(0.0 if h_m is None else h_m, jnp.float64))
+                          jnp.asarray(0.0 if h_m is None else h_m, jnp.float64),
+                          jnp.asarray(True))
     theta = flatten_params(model)
 
     def outs(th):

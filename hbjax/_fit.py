@@ -91,6 +91,7 @@ def arx_given_backlash(backlash: Backlash, recordings, na: int, nb: int) -> ARX:
     rhs = jnp.zeros(na + nb)
     for v, y in recordings:
         p1, p2 = backlash.p1(v), backlash.p2(v)
+        # the core operator (sorted band): the random starts' branches may cross
         u, _ = play_sources(jnp.minimum(p1, p2), jnp.maximum(p1, p2))
         cols = [-lagged(y, i + 1) for i in range(na)] + [lagged(u, i + 1) for i in range(nb)]
         phi = jnp.stack(cols, axis=1)

@@ -19,7 +19,7 @@ from ._backlash import Backlash
 from ._checks import is_traced, positive_int
 from ._config import require_x64
 from ._criteria import (
-    PAPER, STATIC_GAIN, Parametrisation, branches_cross, data_scale, residuals,
+    PAPER, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1, residuals,
 )
 from ._model import Hammerstein
 from ._params import flatten_params
@@ -32,6 +32,11 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
     gauge_undefined = (
         "the normalisation cannot be applied to the initial model: mu = P2(-h_m) - P1(h_m) "
         "is 0 (paper gauge) or B(1) is 0 (static-gain gauge)"
+    )
+    branches_cross = (
+        "the refined branches P1 and P2 cross at recorded inputs: the estimate is not a "
+        "hysteresis band over the data (too little excitation of the inactive branch, or "
+        "a wrong branch degree m)"
     )
 
 
@@ -50,7 +55,8 @@ class RefineResult(eqx.Module):
     - `covariance`: ``sigma^2 (J^T J)^+`` mapped to the normalised parameters (order
       a, b, c1, c2 of :func:`hbjax.flatten_params`); singular along the constraint.
     - `noise_std`: ``sqrt(SSR / (N - q))``, ``q`` the number of free parameters.
-    - `branches_cross`: whether ``P1 - P2`` changes sign at the recorded inputs.
+    - `branches_cross`: whether the band's lower edge exceeds its upper edge at some
+      recorded input (then `result` is ``RESULTS.branches_cross``).
     - `criterion`, `gauge`: what was minimised and how the gain ambiguity was fixed.
     """
 
@@ -94,11 +100,11 @@ def gauge_transform(model: Hammerstein, par: Parametrisation):
     return Hammerstein(Backlash(bl.c1 * inv, bl.c2 * inv), ARX(arx.a, arx.b * mu)), ok
 
 
-def make_parametrisation(model, recordings, h_m) -> Parametrisation:
+def make_parametrisation(model, recordings, h_m, lower=True) -> Parametrisation:
     gauge = STATIC_GAIN if h_m is None else PAPER
     h = jnp.asarray(0.0 if h_m is None else h_m, jnp.float64)
     return Parametrisation(model.arx.na, model.arx.nb, model.backlash.m, gauge,
-                           data_scale(recordings), h)
+                           data_scale(recordings), h, jnp.asarray(lower))
 
 
 def _flat_residuals(z, par, recordings, criterion):
@@ -161,14 +167,23 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     """
     par = make_parametrisation(model, recordings, h_m)
     start, ok = gauge_transform(model, par)
+    # The band's orientation is taken from the (normalised) start and kept fixed.
+    par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
     z0 = par.free(flatten_params(start))
     sol = solve(par, z0, recordings, criterion, max_steps=max_steps, rtol=rtol, atol=atol)
     r, jac = _at_optimum(sol, par, recordings, criterion)
     fitted, result, stats, cov, noise_std = summarise(
         par, sol.value, z0, r, jac, sol.result, sol.stats["num_steps"], recordings,
         criterion, ok)
-    return RefineResult(fitted, result, stats, cov, noise_std,
-                        branches_cross(fitted, recordings), criterion, par.gauge)
+    return finish(fitted, result, stats, cov, noise_std, par, recordings, criterion)
+
+
+def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion):
+    """The result, failing with ``branches_cross`` where the band is not a band."""
+    crossed = band_violated(fitted, recordings, par.lower_is_p1)
+    result = RESULTS.where(crossed & (result == RESULTS.successful), RESULTS.branches_cross,
+                           result)
+    return RefineResult(fitted, result, stats, cov, noise_std, crossed, criterion, par.gauge)
 
 
 @eqx.filter_jit
@@ -250,9 +265,13 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       backlash, assumption A5 makes it possible); compare with
       :func:`hbjax.normalise_static_gain`.
 
-    The play operator uses ``L = min(P1, P2)``, ``H = max(P1, P2)`` pointwise, so every
-    parameter value is a valid band; ``.branches_cross`` reports when the branches cross
-    at the recorded inputs (their labels are then ambiguous). Orders are static.
+    The band stays a band: the branch that is lower on average over the data for the
+    (normalised) initial model is the lower edge ``L`` throughout the solve (a labelled
+    band, smooth in the parameters, where ``L = min, H = max`` would have a kink each time
+    an estimate's branches touch at a recorded input and trap the solver there). If the
+    refined branches cross at a recorded input the result is ``RESULTS.branches_cross``
+    (``.branches_cross`` is True); otherwise the returned model is exactly the core's
+    ``L = min(P1, P2)``, ``H = max(P1, P2)`` operator on the data. Orders are static.
 
     **Arguments:**
 

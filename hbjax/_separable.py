@@ -3,6 +3,7 @@ hard input nonlinearities: for fixed backlash parameters the internal signal ``u
 and the ARX parameters follow by linear least squares; only the backlash parameters are
 searched (here by Levenberg–Marquardt on the projected residual, Golub–Pereyra)."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -12,32 +13,31 @@ from ._arx import ARX
 from ._backlash import Backlash
 from ._checks import is_traced, positive_int
 from ._config import require_x64
-from ._criteria import PREDICTION, internal_signal, lagged_rows
+from ._criteria import PREDICTION, internal_signal, lagged_rows, lower_is_p1
 from ._model import Hammerstein
 from ._params import flatten_params
 from ._recordings import as_recordings, check_h_m, check_model, total_samples
 from ._refine import (
-    RESULTS, RefinementError, RefineResult, _check_gauge, _flat_residuals, gauge_transform,
-    make_parametrisation, summarise,
+    RESULTS, RefinementError, RefineResult, _check_gauge, _flat_residuals, finish,
+    gauge_transform, make_parametrisation, summarise,
 )
-from ._criteria import branches_cross
 
 
-def _regressors(theta_c, x, y, na, nb):
+def _regressors(theta_c, x, y, lower, na, nb):
     """``phi(t) = [-y(t-1..na), u(t-1..nb)]`` of eq. (10) with ``u = HB(v)`` for the
     backlash coefficients ``theta_c = [c1, c2]`` (the ARX slots are unused)."""
     theta = jnp.concatenate([jnp.zeros(na + nb), theta_c])
-    u = internal_signal(theta, x, na, nb)
+    u = internal_signal(theta, x, lower, na, nb)
     cols = [-lagged_rows(y, i + 1) for i in range(na)] + [lagged_rows(u, i + 1) for i in range(nb)]
     return jnp.stack(cols, axis=1)
 
 
-def linear_part(theta_c, recordings, scale, na, nb):
+def linear_part(theta_c, recordings, scale, lower, na, nb):
     """The ARX parameters minimising the prediction errors for fixed backlash (linear LS,
     normal equations with equilibration; differentiable in ``theta_c``)."""
     gram, rhs = 0.0, 0.0
     for v, y in recordings:
-        phi = _regressors(theta_c, v / scale, y, na, nb)
+        phi = _regressors(theta_c, v / scale, y, lower, na, nb)
         gram = gram + phi.T @ phi
         rhs = rhs + phi.T @ y
     d = jnp.sqrt(jnp.maximum(jnp.diagonal(gram), 1e-300))
@@ -46,10 +46,10 @@ def linear_part(theta_c, recordings, scale, na, nb):
 
 def _projected_residuals(w, args):
     """Variable-projection residual ``y - phi(c) theta_lin(c)`` for ``c = c_p + U w``."""
-    c_p, basis, recordings, scale, na, nb = args
+    c_p, basis, recordings, scale, lower, na, nb = args
     theta_c = c_p + basis @ w
-    theta_lin = linear_part(theta_c, recordings, scale, na, nb)
-    return tuple(y - _regressors(theta_c, v / scale, y, na, nb) @ theta_lin
+    theta_lin = linear_part(theta_c, recordings, scale, lower, na, nb)
+    return tuple(y - _regressors(theta_c, v / scale, y, lower, na, nb) @ theta_lin
                  for v, y in recordings)
 
 
@@ -65,6 +65,7 @@ def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: 
     na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
     par = make_parametrisation(model, recordings, h_m)
     start, ok = gauge_transform(model, par)
+    par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
     powers = jnp.concatenate([par.scale ** jnp.arange(m)] * 2)
     c0 = jnp.concatenate([start.backlash.c1, start.backlash.c2]) * powers
     if h_m is None:
@@ -75,13 +76,13 @@ def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: 
         g = par.constraint_row()[na + nb:] / powers  # P2(-h_m) - P1(h_m) = 1, scaled
     c_p, basis = _constraint_basis(g)
     w0 = basis.T @ (c0 - c_p)
-    args = (c_p, basis, recordings, par.scale, na, nb)
+    args = (c_p, basis, recordings, par.scale, par.lower_is_p1, na, nb)
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.max_norm,
                                      linear_solver=lx.Normal(lx.Cholesky()))
     sol = optx.least_squares(_projected_residuals, solver, w0, args=args,
                              max_steps=max_steps, throw=False)
     theta_c = (c_p + basis @ sol.value) / powers
-    theta_lin = linear_part(theta_c * powers, recordings, par.scale, na, nb)
+    theta_lin = linear_part(theta_c * powers, recordings, par.scale, par.lower_is_p1, na, nb)
     found = Hammerstein(Backlash(theta_c[:m], theta_c[m:]), ARX(theta_lin[:na], theta_lin[na:]))
     found, ok_end = gauge_transform(found, par)
     z = par.free(flatten_params(found))
@@ -91,8 +92,7 @@ def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: 
     fitted, result, stats, cov, noise_std = summarise(
         par, z, z0, r, jac, sol.result, sol.stats["num_steps"], recordings, PREDICTION,
         ok & ok_end)
-    return RefineResult(fitted, result, stats, cov, noise_std,
-                        branches_cross(fitted, recordings), PREDICTION, par.gauge)
+    return finish(fitted, result, stats, cov, noise_std, par, recordings, PREDICTION)
 
 
 _separable_jit = jax.jit(separable_traceable, static_argnames=("max_steps", "rtol", "atol"))
