@@ -1,0 +1,256 @@
+"""Refinement benchmark: hbjax.refine vs scipy.optimize.least_squares on the same residual,
+plus separable least squares and the closed form, on the paper's three experiments.
+
+Run: ``.venv/bin/python benchmarks/refine.py`` (writes its section of RESULTS.md).
+
+Problem: default system and design (n = 2, m = 3, h_m = 4), equation noise std 0.2,
+T = 10 000 samples per experiment (30 000 residuals, 9 free parameters), prediction-error
+criterion, paper normalisation, initial model = the closed-form estimate.
+Peer: scipy's MINPACK Levenberg-Marquardt (``method="lm"``), finite-difference Jacobian,
+residual computed by a Numba loop (play operator + ARX predictor), same elimination of
+c2_0 as hbjax.
+"""
+
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numba  # noqa: E402
+from scipy.optimize import least_squares  # noqa: E402
+
+import hbjax  # noqa: E402
+from hbjax._giri import estimate_giri  # noqa: E402
+from hbjax._refine import refine_batch, refine_traceable  # noqa: E402
+from hbjax._separable import separable_traceable  # noqa: E402
+from _machine import describe, write_section  # noqa: E402
+
+T, SIGMA, H_M = 10_000, 0.2, 4.0
+SYSTEM, DESIGN = hbjax.default_system(), hbjax.default_design()
+INPUTS = tuple(np.asarray(f(T)) for f in (DESIGN.constant_input, DESIGN.binary_input,
+                                          DESIGN.staircase_input))
+
+
+def records(key):
+    return [np.asarray(hbjax.simulate(SYSTEM, v, SIGMA * jax.random.normal(k, (T,))))
+            for v, k in zip(INPUTS, jax.random.split(key, 3))]
+
+
+@numba.njit(cache=False)
+def _residual_record(a, b, c1, c2, v, y, out):
+    n, na, nb, m = v.shape[0], a.shape[0], b.shape[0], c1.shape[0]
+    u = np.empty(n)
+    state = 0.0
+    for t in range(n):
+        p1, p2 = c1[m - 1], c2[m - 1]
+        for k in range(m - 2, -1, -1):
+            p1 = p1 * v[t] + c1[k]
+            p2 = p2 * v[t] + c2[k]
+        state = min(max(state, min(p1, p2)), max(p1, p2))
+        u[t] = state
+    for t in range(n):
+        acc = y[t]
+        for i in range(na):
+            if t - 1 - i >= 0:
+                acc += a[i] * y[t - 1 - i]
+        for i in range(nb):
+            if t - 1 - i >= 0:
+                acc -= b[i] * u[t - 1 - i]
+        out[t] = acc
+
+
+def theta_of(z):
+    th = np.insert(z, 7, 0.0)
+    k = np.arange(3)
+    g = np.concatenate([np.zeros(4), -(H_M**k), (-H_M) ** k])
+    th[7] = 1.0 - g @ th
+    return th
+
+
+def scipy_fit(z0, ys):
+    out = np.empty(3 * T)
+
+    def fun(z):
+        th = theta_of(z)
+        for j in range(3):
+            _residual_record(th[:2], th[2:4], th[4:7], th[7:], INPUTS[j], ys[j],
+                             out[j * T:(j + 1) * T])
+        return out.copy()
+
+    sol = least_squares(fun, z0, method="lm", xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    return theta_of(sol.x), sol.nfev
+
+
+def best_of(f, repeat=3):
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = f()
+        jax.block_until_ready(out)
+        times.append(time.perf_counter() - t0)
+    return min(times), out
+
+
+def peer_comparison(fits=5):
+    rows = []
+    refine_jit = jax.jit(lambda m, recs: refine_traceable(m, recs, h_m=H_M))
+    sep_jit = jax.jit(lambda m, recs: separable_traceable(m, recs, h_m=H_M))
+    compile_refine = compile_sep = None
+    for i, key in enumerate(jax.random.split(jax.random.PRNGKey(100), fits)):
+        ys = records(key)
+        giri = hbjax.identify_giri(DESIGN, *ys)
+        recs = tuple((jnp.asarray(v), jnp.asarray(y)) for v, y in zip(INPUTS, ys))
+        if i == 0:
+            t0 = time.perf_counter()
+            jax.block_until_ready(refine_jit(giri.model, recs))
+            compile_refine = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            jax.block_until_ready(sep_jit(giri.model, recs))
+            compile_sep = time.perf_counter() - t0
+        t_ours, res = best_of(lambda: refine_jit(giri.model, recs))
+        t_sep, sep = best_of(lambda: sep_jit(giri.model, recs))
+        z0 = np.delete(np.asarray(hbjax.flatten_params(giri.model)), 7)
+        _residual_record(*(np.zeros(2), np.zeros(2), np.zeros(3), np.zeros(3)), INPUTS[0],
+                         ys[0], np.empty(T))  # compile the peer outside the timing
+        t_peer, (peer, nfev) = best_of(lambda: scipy_fit(z0, ys))
+        ours = np.asarray(hbjax.flatten_params(res.model))
+        sep_p = np.asarray(hbjax.flatten_params(sep.model))
+        scale = np.abs(peer).max()
+        rows.append(dict(t_ours=t_ours, t_sep=t_sep, t_peer=t_peer, nfev=nfev,
+                         steps=int(res.stats["steps"]), sep_steps=int(sep.stats["steps"]),
+                         diff=np.abs(ours - peer).max() / scale,
+                         diff_std=np.max(np.abs(ours - peer) / np.asarray(res.std)),
+                         sep_diff=np.abs(sep_p - ours).max() / scale))
+        print(f"fit {i}: hbjax {t_ours * 1e3:.1f} ms ({rows[-1]['steps']} steps), separable "
+              f"{t_sep * 1e3:.1f} ms, scipy {t_peer * 1e3:.1f} ms ({nfev} evaluations), "
+              f"max |hbjax - scipy| / max|theta| = {rows[-1]['diff']:.2e}")
+    return rows, compile_refine, compile_sep
+
+
+def batching(count=20):
+    """Per-fit time of refine_batch (lax.map) vs vmap over realisations."""
+    keys = jax.random.split(jax.random.PRNGKey(7), count)
+    ys = [records(k) for k in keys]
+    models = [estimate_giri(DESIGN, *y).model for y in ys]
+    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *models)
+    inputs = tuple(jnp.asarray(v) for v in INPUTS)
+    outputs = tuple(jnp.stack([jnp.asarray(y[k]) for y in ys]) for k in range(3))
+    mapped = jax.jit(lambda m, o: refine_batch(m, inputs, o, h_m=H_M))
+    vmapped = jax.jit(jax.vmap(lambda m, y1, y2, y3: refine_traceable(
+        m, tuple(zip(inputs, (y1, y2, y3))), h_m=H_M)))
+    jax.block_until_ready(mapped(stacked, outputs))
+    jax.block_until_ready(vmapped(stacked, *outputs))
+    t_map, _ = best_of(lambda: mapped(stacked, outputs), repeat=2)
+    t_vmap, _ = best_of(lambda: vmapped(stacked, *outputs), repeat=2)
+    return t_map / count, t_vmap / count
+
+
+def accuracy(reps=200, chunk=50):
+    """Monte Carlo: var / CRLB and bias of closed form, refined and separable estimates."""
+    inputs = tuple(jnp.asarray(v) for v in INPUTS)
+
+    @jax.jit
+    def study(keys):
+        def simulate(k):
+            return tuple(SYSTEM.simulate_trajectory(v, SIGMA * jax.random.normal(kk, (T,)), 0.0)
+                         for v, kk in zip(inputs, jax.random.split(k, 3)))
+
+        ys = jax.vmap(simulate)(keys)
+        giri = jax.vmap(lambda *y: estimate_giri(DESIGN, *y))(*ys)
+        ref = refine_batch(giri.model, inputs, ys, h_m=H_M)
+        sep = jax.lax.map(lambda a: separable_traceable(a[0], tuple(zip(inputs, a[1])),
+                                                        h_m=H_M), (giri.model, ys))
+        flat = jax.vmap(hbjax.flatten_params)
+        return (flat(giri.model), flat(ref.model), ref.result._value, flat(sep.model),
+                sep.result._value)
+
+    keys = jax.random.split(jax.random.PRNGKey(42), reps)
+    t0 = time.perf_counter()
+    parts = [study(keys[i:i + chunk]) for i in range(0, reps, chunk)]
+    jax.block_until_ready(parts)
+    elapsed = time.perf_counter() - t0
+    cat = [np.concatenate([p[j] for p in parts]) for j in range(5)]
+    truth_model = hbjax.normalise(SYSTEM, H_M)
+    truth = np.asarray(hbjax.flatten_params(truth_model))
+    ys = records(jax.random.PRNGKey(3))
+    bound = np.diag(np.asarray(hbjax.crlb(truth_model, list(zip(INPUTS, ys)), noise_std=SIGMA,
+                                          h_m=H_M).covariance))
+    out = {}
+    for name, est, codes in (("closed form (identify_giri)", cat[0], np.zeros(reps, int)),
+                             ("refined (hbjax.refine)", cat[1], cat[2]),
+                             ("separable LS (hbjax.separable_ls)", cat[3], cat[4])):
+        ok = codes == 0
+        e = est[ok]
+        out[name] = dict(ratio=e.var(0, ddof=1) / bound,
+                         bias=(e.mean(0) - truth) / e.std(0, ddof=1), failed=int((~ok).sum()))
+    return out, elapsed, reps
+
+
+def main():
+    print(describe())
+    rows, c_ref, c_sep = peer_comparison()
+    t_ours = np.median([r["t_ours"] for r in rows])
+    t_sep = np.median([r["t_sep"] for r in rows])
+    t_peer = np.median([r["t_peer"] for r in rows])
+    worst = max(r["diff"] for r in rows)
+    worst_std = max(r["diff_std"] for r in rows)
+    worst_sep = max(r["sep_diff"] for r in rows)
+    t_map, t_vmap = batching()
+    acc, elapsed, reps = accuracy()
+    names = hbjax.param_names(SYSTEM)
+    lines = [
+        f"Machine: {describe()}. Paper's three experiments (default system, n=2, m=3, "
+        f"h_m=4), T = {T} samples each (30 000 residuals, 9 free parameters), equation noise "
+        f"std {SIGMA}, prediction-error criterion, paper normalisation, start = closed form. "
+        "Best of 3 runs per fit, median over 5 noise realisations; the machine is shared "
+        "(load average often above 4 on 2 cores), so timings are noisy.",
+        "",
+        "| implementation | compile (s) | time per fit (ms) | vs scipy | steps / evaluations |",
+        "|---|---|---|---|---|",
+        f"| hbjax.refine (optimistix LM, closed-form Jacobian) | {c_ref:.1f} | {t_ours * 1e3:.1f} "
+        f"| {t_peer / t_ours:.1f}x faster | {np.median([r['steps'] for r in rows]):.0f} steps |",
+        f"| hbjax.separable_ls (variable projection, Bai 2002) | {c_sep:.1f} | {t_sep * 1e3:.1f} "
+        f"| {t_peer / t_sep:.1f}x faster | {np.median([r['sep_steps'] for r in rows]):.0f} steps |",
+        f"| scipy.optimize.least_squares(method='lm'), Numba residual, FD Jacobian | "
+        f"numba JIT | {t_peer * 1e3:.1f} | 1x | {np.median([r['nfev'] for r in rows]):.0f} "
+        "residual evaluations |",
+        "",
+        f"Target: hbjax >= 3x faster per fit after compilation; measured "
+        f"{t_peer / t_ours:.1f}x. Agreement with scipy: max |theta_hbjax - theta_scipy| / "
+        f"max |theta| = {worst:.1e} (target 1e-6), i.e. {worst_std:.1e} standard errors; "
+        f"separable LS vs refine: {worst_sep:.1e}.",
+        "",
+        f"Batches of 20 realisations (`refine_batch`): {t_map * 1e3:.0f} ms per fit with the "
+        f"default sequential `lax.map`, {t_vmap * 1e3:.0f} ms per fit with `jax.vmap` "
+        "(on CPU a fit's T x p Jacobian stays in cache; a batch's does not).",
+        "",
+        f"Accuracy, Monte Carlo with {reps} realisations ({elapsed:.0f} s for all three "
+        "estimators incl. compilation): var / CRLB and bias / std per normalised parameter "
+        "(CRLB from `hbjax.crlb`, constrained; realisations whose refined branches cross at "
+        "a recorded input are counted as failed and excluded).",
+        "",
+        "| estimator | failed | " + " | ".join(names) + " |",
+        "|---|---|" + "---|" * len(names),
+    ]
+    for name, a in acc.items():
+        lines.append(f"| {name}: var/CRLB | {a['failed']} | "
+                     + " | ".join(f"{x:.2f}" for x in a["ratio"]) + " |")
+        lines.append(f"| {name}: bias/std | | "
+                     + " | ".join(f"{x:+.3f}" for x in a["bias"]) + " |")
+    lines += [
+        "",
+        "The slow test `tests/test_refine.py::test_refined_estimator_reaches_the_cramer_rao_bound` "
+        "checks var/CRLB <= 1.2 and |bias| <= 0.1 std on 500 realisations.",
+    ]
+    body = "\n".join(lines)
+    print(body)
+    write_section("Refinement", body)
+
+
+if __name__ == "__main__":
+    main()
