@@ -119,7 +119,7 @@ def _conceal(effect, base, v, y0, u, rng, n):
         return fx.InputSaturation(base, jnp.asarray(lower), jnp.asarray(upper)), base, \
             {"lower": lower, "upper": upper}
     if effect == "extra_delay":
-        d = int(rng.integers(1, 4))
+        d = int(rng.integers(2, 5))
         return fx.ExtraDelay(base, d), base, {"delay": d}
     if effect == "unmodeled_dynamics":
         p, z = 0.8, 0.3  # missing pole at 0.8 and zero at 0.3, DC gain kept by the nominal

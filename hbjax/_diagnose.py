@@ -37,7 +37,7 @@ from ._model import Hammerstein
 BIC_MARGIN = 10.0
 #: z of the held-out Diebold-Mariano test a candidate must reach
 DM_Z = 2.0
-MAX_STEPS = 30
+MAX_STEPS = 45
 _SSE_BATCH = 64
 _PREDICTION_METRIC = ("colored_noise",)
 
@@ -216,7 +216,8 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
     - `criterion`: ``"prediction"`` (default; one-step prediction error, maximum likelihood
       under the paper's white equation error) or ``"simulation"`` (output error, for slow
       processes where one-step prediction hides low-frequency mismatch, e.g. level
-      control; ``colored_noise`` is then not a candidate and the first 20% of the fitting
+      control; ``colored_noise`` and ``parameter_change`` are then not candidates and the
+      first 20% of the fitting
       segment, at most 300 samples, is a start-up transient left out of the criterion).
 
     **Returns:** a :class:`Diagnosis`.
@@ -227,7 +228,9 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
     lay, theta_nom = base_theta(model)
     burn = lay.na + lay.nb + MAX_DELAY + 4
     if criterion == "simulation":
-        effects = [e for e in effects if e != "colored_noise"]
+        # no noise model in an output-error fit, and the change model's criterion is only
+        # an approximation of the output error after the change
+        effects = [e for e in effects if e not in ("colored_noise", "parameter_change")]
         burn = max(burn, min(n_fit // 5, 300))
     v_fit, y_fit = v[:n_fit], y[:n_fit]
     T = len(v)

@@ -125,7 +125,7 @@ def diebold_mariano(ref: np.ndarray, new: np.ndarray) -> float:
     Newey-West long-run variance: residuals of a dynamic model are autocorrelated)."""
     d = ref**2 - new**2
     n = len(d)
-    lag = max(10, int(3 * n ** (1 / 3)))
+    lag = max(1, math.ceil(4 * (n / 100) ** (2 / 9)))  # Newey-West rule of thumb
     dc = d - d.mean()
     lrv = np.sum(dc * dc) / n
     for k in range(1, min(lag, n - 1) + 1):

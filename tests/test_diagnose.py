@@ -11,7 +11,7 @@ import pytest
 
 import hbjax
 from hbjax import _effects as fx
-from hbjax._effects_kernel import fast_prediction_error, prediction_error
+from hbjax._effects_kernel import fast_jacobian, fast_prediction_error, prediction_error
 
 
 def _reference(c1, c2, a, b, v, xi, *, delay=0, u_clip=(-np.inf, np.inf), y_map=None):
@@ -109,6 +109,23 @@ def test_fast_criterion_equals_exact_prediction_error(effect):
     np.testing.assert_allclose(y - hbjax.predict(model, v, y), exact, atol=1e-9)
 
 
+@pytest.mark.parametrize("criterion", ["prediction", "simulation"])
+def test_hand_written_jacobian_matches_autodiff(criterion):
+    rec = hbjax.concealed_recording("coulomb_friction", system=0, n=400, key=jax.random.PRNGKey(5))
+    lay, theta, ints, consts = rec.true_model.parts()
+    # move every extension off its neutral value so that every column is exercised
+    for name, val in (("sin_cos", 0.2), ("sin_freq", 0.05), ("drift_rate", 1e-3),
+                      ("noise_d", [0.1, -0.05]), ("in_hi", 3.0), ("c1_extra", 0.1),
+                      ("da", [0.01, 0.0]), ("db", [0.1, 0.0]), ("a_extra", 0.02)):
+        theta = lay.put(theta, name, val)
+    ints = jnp.asarray([2, 150])
+    v, y = jnp.asarray(rec.v), jnp.asarray(rec.y)
+    hand = fast_jacobian(lay, theta, ints, consts, v, y, criterion=criterion)
+    auto = jax.jacfwd(lambda th: fast_prediction_error(
+        lay, th, ints, consts, v, y, output_static=False, criterion=criterion))(theta)
+    np.testing.assert_allclose(hand, auto, atol=1e-8 * float(jnp.max(jnp.abs(auto))))
+
+
 def test_gradient_through_extension_matches_finite_differences(record):
     system, v, xi = record
     y = np.asarray(hbjax.simulate(fx.InputSaturation(system, None, jnp.asarray(3.0)), v, xi))
@@ -142,6 +159,8 @@ def test_bad_input(system):
         hbjax.diagnose(system, v, y, holdout=1.5)
     with pytest.raises(TypeError, match="`model`"):
         hbjax.diagnose("model", v, y)
+    with pytest.raises(ValueError, match="`criterion`"):
+        hbjax.diagnose(system, v, y, criterion="likelihood")
     with pytest.raises(ValueError, match="unknown `effect`"):
         hbjax.concealed_recording("gremlins")
 
