@@ -96,12 +96,3 @@ def check_model(model, name: str = "model") -> None:
     if any(not np.all(np.isfinite(np.asarray(x))) for x in leaves):
         raise ValueError(f"`{name}` has non-finite parameters.")
 
-
-def check_orders(model, na, nb, m, name: str = "model") -> None:
-    """Refuse an initial model whose orders differ from the requested ones."""
-    got = (model.arx.na, model.arx.nb, model.backlash.m)
-    want = (na, nb, m)
-    if any(w is not None and g != w for g, w in zip(got, want)):
-        raise ValueError(
-            f"`{name}` has orders (na, nb, m) = {got}, but {tuple(want)} were requested."
-        )
