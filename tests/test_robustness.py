@@ -352,7 +352,7 @@ bad(MU, "monte_carlo", ValueError, "v = \\+h_m does not put the output on P1", l
 
 # --- refine, fit, crlb
 T_R = 300
-V_R = D.staircase_input(T_R)
+V_R = 1.5 * H_M * np.sin(np.arange(T_R) / 7.0)  # sweeps both branches
 Y_R = np.asarray(hbjax.simulate(M, V_R, 0.1 * np.random.default_rng(3).standard_normal(T_R)))
 REC = (V_R, Y_R)
 MN = hbjax.normalise(M, H_M)
@@ -479,6 +479,13 @@ bad(CLI, "hbjax simulate", CLIError, "exit 1: .*already exists", lambda t: cli("
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*unknown config keys \\['sigma'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"sigma": 1, "noise_std": 0.1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*missing config keys \\['realisations'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [40]}'), "--out", t / "s.json", "--no-progress"))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*`noise_std` must be a finite number >= 0", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": -1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
+REC_CSV = "v,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(V_R, Y_R))
+bad(CLI, "hbjax identify fit", CLIError, "exit 1: .*`na` must be an integer >= 0, got -1", lambda t: cli("identify", "fit", "--na", -1, "--nb", 2, "--m", 3, text_file(t, "rec.csv", REC_CSV), "--out", t / "fit.json"))
+bad(CLI, "hbjax identify fit", CLIError, "exit 2: .*--criterion: invalid choice: 'mse'", lambda t: cli("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, "--criterion", "mse", text_file(t, "rec.csv", REC_CSV), "--out", t / "fit.json"))
+bad(CLI, "hbjax identify fit", CLIError, "exit 1: .*non-numeric cell 'x' at row 3", lambda t: cli("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, text_file(t, "rec.csv", "v,y\n1,2\n3,x\n"), "--out", t / "fit.json"))
+DIAG_CSV = "v,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(V_D, Y_D))
+bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*`holdout` must be a fraction in \\(0, 1\\), got 1.5", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", DIAG_CSV), "--holdout", 1.5))
+bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*unknown effect name\\(s\\) in `effects`: \\['friction'\\]", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", DIAG_CSV), "--effects", "friction"))
 bad(CLI, "hbjax identify giri", CLIError, "exit 1: .*`y\\d` has \\d+ samples; it must cover at least", lambda t: cli("identify", "giri", "--design", "n=2,m=3,h_m=4", *[text_file(t, f"y{k}.csv", "y\n1\n2\n3\n") for k in (1, 2, 3)], "--out", t / "m2.json"))
 
 
@@ -663,7 +670,8 @@ def test_refine_and_fit_with_throw_false_return_a_failure_code():
 
 def test_a_failed_refinement_in_a_batch_leaves_the_others_intact():
     # vmapped refinement (as in Monte Carlo 'refined'): one start has mu = 0, so the
-    # paper's normalisation is undefined; it reports a code, the others converge as alone.
+    # paper's normalisation is undefined; it reports a code, the others converge as alone
+    # (to the solver's tolerance: converged members of a vmapped loop may take extra steps).
     from hbjax._refine import RESULTS, refine_traceable
 
     quarter = hbjax.Backlash([0.0, 0.0, 1.0 / 16.0], [1.0, 0.0, 0.0])  # mu(4) = 1 - 16/16 = 0
@@ -678,7 +686,7 @@ def test_a_failed_refinement_in_a_batch_leaves_the_others_intact():
     for i in (0, 2):
         alone = hbjax.refine(starts[i], REC, h_m=H_M)
         np.testing.assert_allclose(theta[i],
-                                   hbjax.flatten_params(alone.model), rtol=1e-8, atol=1e-10)
+                                   hbjax.flatten_params(alone.model), rtol=1e-6, atol=1e-9)
 
 
 # ----------------------------------------------------------------------------- files
