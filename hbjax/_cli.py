@@ -170,6 +170,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="final fraction of the record kept out of every fit (default 0.3)")
     diag.add_argument("--effects", default=None,
                       help="comma-separated effect names to consider (default: all)")
+    diag.add_argument("--criterion", choices=("prediction", "simulation"), default=None,
+                      help="fit criterion: one-step prediction (default) or free-run "
+                      "simulation error (slow processes)")
     diag.add_argument("--json", default=None, help="write the report as JSON")
     diag.add_argument("--plot", default=None, help="write the report figure (.png, .pdf, .svg)")
     diag.add_argument("--save-model", default=None,

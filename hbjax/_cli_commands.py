@@ -311,7 +311,8 @@ def cmd_diagnose(args) -> int:
     effects = None
     if args.effects:
         effects = [e.strip() for e in args.effects.split(",") if e.strip()]
-    report = diagnose(model, rec.v, rec.y, holdout=args.holdout, effects=effects)
+    options = {} if args.criterion is None else {"criterion": args.criterion}
+    report = diagnose(model, rec.v, rec.y, holdout=args.holdout, effects=effects, **options)
     print(f"{rec.source}: {len(rec)} samples, nominal model {args.model}")
     print(report.summary())
     if args.json is not None:
