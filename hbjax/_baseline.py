@@ -81,4 +81,6 @@ def identify_nominal(v, y, *, na: int = 2, nb: int = 2, m: int = 3, gap: float |
                             jnp.asarray(v), jnp.asarray(y),
                             max(lay.na + lay.nb + MAX_DELAY + 4, int(transient)),
                             max_steps, False, criterion)
-    return cands.base_model(lay, theta[0])
+    model = cands.base_model(lay, theta[0])
+    # an output-error fit can wander into an unstable linear block; keep the start then
+    return model if model.arx.is_stable() or not start.arx.is_stable() else start

@@ -88,8 +88,8 @@ class Diagnosis:
         w = self.residual_tests["whiteness"]
         ind = self.residual_tests["independence"]
         lines.append(
-            f"Nominal residuals: whiteness p = {w['p_value']:.3g} ({w['lags_outside']} lags "
-            f"outside the 99% band); independence from past input p = {ind['p_value']:.3g}.")
+            f"Nominal residuals: whiteness p = {_num(w['p_value'])} ({w['lags_outside']} lags "
+            f"outside the 99% band); independence from past input p = {_num(ind['p_value'])}.")
         if not self.findings and self.mismatch:
             lines.append("The residuals are structured (not white, and correlated with past "
                          "inputs) but no effect of the library explains them significantly.")
@@ -101,8 +101,8 @@ class Diagnosis:
             lines.append(f"   where: {_short(f.where)}")
             lines.append(f"   parameters: {_short(f.parameters)}")
             lines.append(f"   held-out {f.metric} fit {f.fit_before:.1f}% -> {f.fit_after:.1f}% "
-                         f"(dBIC vs refit {f.evidence.get('delta_bic_vs_refit', float('nan')):.1f}, "
-                         f"DM z {f.evidence.get('dm_z', float('nan')):.1f})")
+                         f"(dBIC vs refit {_num(f.evidence.get('delta_bic_vs_refit'), '.1f')}, "
+                         f"DM z {_num(f.evidence.get('dm_z'), '.1f')})")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -114,6 +114,10 @@ class Diagnosis:
             "candidates": self.candidates,
             "n_fit": self.n_fit, "n_holdout": self.n_holdout,
         })
+
+
+def _num(x, spec=".3g"):
+    return "n/a" if x is None or not math.isfinite(float(x)) else format(float(x), spec)
 
 
 def _short(d):

@@ -19,6 +19,8 @@ Z99 = 2.5758293035489004  # two-sided 99% normal quantile
 
 def chi2_sf(x: float, dof: int) -> float:
     """Survival function of the chi-square distribution."""
+    if not math.isfinite(x):
+        return 0.0 if x > 0 else float("nan")
     if x <= 0:
         return 1.0
     return float(gammaincc(dof / 2.0, x / 2.0))
