@@ -112,17 +112,37 @@ def crlb(model: Hammerstein, recordings, *, noise_std, criterion: str = "predict
             raise TypeError(f"`noise_std` must be a real number, got {noise_std!r}.") from None
         if not np.isfinite(sigma) or sigma <= 0:
             raise ValueError(f"`noise_std` must be a finite number > 0, got {noise_std!r}.")
-    if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
+    if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)) and not is_traced(h_m):
         _check_normalised(model, h_m)
-    return _crlb_jit(model, recs, noise_std=noise_std, criterion=criterion, h_m=h_m)
+    res = _crlb_jit(model, recs, noise_std=noise_std, criterion=criterion, h_m=h_m)
+    if not is_traced(res.fisher):
+        _check_identified(res)
+    return res
+
+
+def _check_identified(res):
+    """A pseudo-inverse of a singular Fisher information gives finite numbers where the
+    bound is infinite: refuse records that do not identify every free parameter."""
+    fisher, g = np.asarray(res.fisher), np.asarray(res.constraint)
+    basis = np.linalg.svd(g[None, :])[2][1:].T
+    ev = np.linalg.eigvalsh(basis.T @ fisher @ basis)
+    rank = int(np.sum(ev > 1e-12 * ev.max())) if ev.max() > 0 else 0
+    if rank < ev.size:
+        raise ValueError(
+            f"the Fisher information is singular (rank {rank} of {ev.size} free parameters): "
+            "the records do not identify every parameter (too short, or an input that leaves "
+            "a branch unexcited), so the Cramer-Rao bound is infinite in some directions."
+        )
 
 
 def _check_normalised(model, h_m):
     if h_m is None:
-        value, what, fix = float(jnp.sum(model.arx.b)), "B(1) = sum(b)", "hbjax.normalise_static_gain(model)"
+        value, what, fix = float(np.sum(np.asarray(model.arx.b))), "B(1) = sum(b)", "hbjax.normalise_static_gain(model)"
     else:
         bl = model.backlash
-        value = float(bl.p2(-h_m) - bl.p1(h_m))
+        # NumPy, not jnp: inside jit even constant jnp operations are traced.
+        poly = np.polynomial.polynomial.polyval
+        value = float(poly(-h_m, np.asarray(bl.c2)) - poly(h_m, np.asarray(bl.c1)))
         what, fix = "P2(-h_m) - P1(h_m)", "hbjax.normalise(model, h_m)"
     if not abs(value - 1.0) <= 1e-8:
         raise ValueError(

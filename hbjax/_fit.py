@@ -200,9 +200,11 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     starts = positive_int(starts, "starts")
     max_steps = positive_int(max_steps, "max_steps")
     check_criterion(criterion)
-    if not (isinstance(key, jax.Array) and (jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
-                                            or (key.dtype == jnp.uint32 and key.shape == (2,)))):
-        raise TypeError(f"`key` must be a JAX PRNG key (jax.random.key or PRNGKey), got {key!r}.")
+    if not (isinstance(key, jax.Array) and (
+            (jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ())
+            or (key.dtype == jnp.uint32 and key.shape == (2,)))):
+        raise TypeError(f"`key` must be a single JAX PRNG key (jax.random.key or PRNGKey), "
+                        f"got {key!r}.")
     recs = as_recordings(recordings)
     q = na + nb + 2 * m - 1
     if total_samples(recs) <= 2 * q:

@@ -71,6 +71,9 @@ def _check_lengths(lengths, design):
 
 
 def _check_noise_std(noise_std):
+    # Strings and booleans convert with float() but are not noise levels.
+    if isinstance(noise_std, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"`noise_std` must be a real number, got {noise_std!r}.")
     try:
         val = float(noise_std)
     except (TypeError, ValueError):
@@ -330,6 +333,9 @@ def monte_carlo(
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
     if not isinstance(design, GiriDesign):
         raise TypeError(f"`design` must be an hbjax.GiriDesign, got {type(design).__name__}.")
+    # Orders that match the design, and the true system inside the method's assumptions
+    # (A3, A4, A5, a band over the excited range): otherwise every realisation would fail.
+    design.check_model(model, assumptions=True)
     noise_std = _check_noise_std(noise_std)
     lengths = _check_lengths(lengths, design)
     realisations = positive_int(realisations, "realisations")

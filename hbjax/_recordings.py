@@ -67,12 +67,27 @@ def check_h_m(h_m):
         return None
     if is_traced(h_m):
         return h_m
+    if isinstance(h_m, (str, bytes, bool, np.bool_)):  # float() would accept these
+        raise TypeError(f"`h_m` must be a real number or None, got {h_m!r}.")
     try:
         val = float(h_m)
     except (TypeError, ValueError):
         raise TypeError(f"`h_m` must be a real number or None, got {h_m!r}.") from None
     if not np.isfinite(val) or val <= 0:
         raise ValueError(f"`h_m` must be a finite number > 0, got {h_m!r}.")
+    return val
+
+
+def check_tolerance(x, name: str) -> float:
+    """A solver tolerance: a finite real number > 0."""
+    if isinstance(x, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"`{name}` must be a real number, got {x!r}.")
+    try:
+        val = float(x)
+    except (TypeError, ValueError):
+        raise TypeError(f"`{name}` must be a real number, got {x!r}.") from None
+    if not (np.isfinite(val) and val > 0):
+        raise ValueError(f"`{name}` must be a finite number > 0, got {x!r}.")
     return val
 
 

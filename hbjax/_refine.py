@@ -23,7 +23,7 @@ from ._criteria import (
 )
 from ._model import Hammerstein
 from ._params import flatten_params
-from ._recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
+from ._recordings import check_tolerance, as_recordings, check_criterion, check_h_m, check_model, total_samples
 
 
 class RESULTS(optx.RESULTS):  # pyright: ignore
@@ -223,7 +223,7 @@ def refine_batch(models: Hammerstein, inputs, outputs, *, criterion: str = "pred
 
 def _check_gauge(model, h_m):
     if h_m is None:
-        gain = float(jnp.sum(model.arx.b))
+        gain = float(np.sum(np.asarray(model.arx.b)))
         if gain == 0.0 or not np.isfinite(gain):
             raise ValueError(
                 "the initial `model` has B(1) = sum(b) = 0: the static-gain normalisation "
@@ -232,7 +232,11 @@ def _check_gauge(model, h_m):
             )
         return
     bl = model.backlash
-    mu = float(bl.p2(-h_m) - bl.p1(h_m))
+    if is_traced(h_m):
+        return
+    # NumPy, not jnp: inside jit even constant jnp operations are traced.
+    poly = np.polynomial.polynomial.polyval
+    mu = float(poly(-h_m, np.asarray(bl.c2)) - poly(h_m, np.asarray(bl.c1)))
     if mu == 0.0 or not np.isfinite(mu):
         raise ValueError(
             f"mu = P2(-h_m) - P1(h_m) is {mu} for the initial `model` and `h_m` = {h_m}: "
@@ -302,7 +306,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         )
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
         _check_gauge(model, h_m)
-    res = _refine_jit(model, recs, criterion, h_m, max_steps, float(rtol), float(atol))
+    res = _refine_jit(model, recs, criterion, h_m, max_steps, check_tolerance(rtol, "rtol"), check_tolerance(atol, "atol"))
     if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
         raise RefinementError(
             f"refine ({criterion} criterion) did not converge: {res.message} "

@@ -152,10 +152,6 @@ CROSS = "branches cross inside the excited range"
 KEY = "wrong key type"
 OPTION = "unknown option or name"
 IDENT = "records that do not identify the parameters"
-CRLB_RANK = ("crlb returns finite bounds from the pseudo-inverse when the Fisher information is "
-             "rank deficient (3 samples; a constant input that leaves the branches unexcited); it "
-             "should refuse with a ValueError ('the Fisher information is singular: rank r of q') "
-             "or give inf for the unidentifiable directions")
 FILES = "files: missing, corrupted, existing, bad folder"
 CLI = "command line"
 
@@ -317,11 +313,10 @@ def mc(model=M, design=D, **kw):
     return hbjax.monte_carlo(model, design, **{**MC, **kw})
 
 
-MC_CHECK = "monte_carlo should call design.check_model(model, assumptions=True) before simulating"
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: mc(model=ARX))
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`design` must be an hbjax.GiriDesign", lambda t: mc(design=(2, 3, 4.0)))
-bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std="0.1"), xfail="monte_carlo accepts a string noise_std (float('0.1'))")
-bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std=True), xfail="monte_carlo accepts a bool noise_std (True -> 1.0)")
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std="0.1"))
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", lambda t: mc(noise_std=True))
 bad(OPTION, "monte_carlo", ValueError, "`estimator` must be 'giri', 'refined' or a callable", lambda t: mc(estimator="mle"))
 bad(OPTION, "monte_carlo", ValueError, "`noise` must be 'equation', 'output' or a callable", lambda t: mc(noise="pink"))
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`devices` must be None or a non-empty sequence", lambda t: mc(devices=["cpu"]))
@@ -343,12 +338,12 @@ bad(ORDER, "monte_carlo", ValueError, "`lengths` must be distinct", lambda t: mc
 bad(ORDER, "monte_carlo", ValueError, "`chunk_size` must be an integer >= 1, got 0", lambda t: mc(chunk_size=0))
 bad(SHORT, "monte_carlo", ValueError, "`lengths` \\[17\\] are shorter than one period of v3", lambda t: mc(lengths=[17]))
 bad(NONFINITE, "monte_carlo", ValueError, "`noise_std` must be a finite number >= 0, got -1", lambda t: mc(noise_std=-1.0))
-bad(COEF, "monte_carlo", ValueError, "orders na=1, nb=2, m=3 but the design expects", lambda t: mc(model=model_with(a=[0.5])), xfail=MC_CHECK + " (now: a NumPy broadcast error)")
-bad(COEF, "monte_carlo", ValueError, "orders na=2, nb=2, m=2 but the design expects", lambda t: mc(model=model_with(c1=[0.0, 1.0], c2=[1.0, 1.0])), xfail=MC_CHECK + " (now: a NumPy broadcast error)")
-bad(UNSTABLE_A, "monte_carlo", ValueError, "`model` has an unstable A", lambda t: mc(model=UNSTABLE), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
-bad(GAIN, "monte_carlo", ValueError, "`model` has B\\(1\\) = 0", lambda t: mc(model=ZERO_GAIN), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
-bad(CROSS, "monte_carlo", ValueError, "branches P1, P2 of `model` cross", lambda t: mc(model=CROSSING), xfail=MC_CHECK + " (now: statistics against a truth the estimator cannot see)")
-bad(MU, "monte_carlo", ValueError, "v = \\+h_m does not put the output on P1", lambda t: mc(design=SMALL_H), xfail=MC_CHECK + " (now: every realisation fails, NaN statistics)")
+bad(COEF, "monte_carlo", ValueError, "orders na=1, nb=2, m=3 but the design expects", lambda t: mc(model=model_with(a=[0.5])))
+bad(COEF, "monte_carlo", ValueError, "orders na=2, nb=2, m=2 but the design expects", lambda t: mc(model=model_with(c1=[0.0, 1.0], c2=[1.0, 1.0])))
+bad(UNSTABLE_A, "monte_carlo", ValueError, "`model` has an unstable A", lambda t: mc(model=UNSTABLE))
+bad(GAIN, "monte_carlo", ValueError, "`model` has B\\(1\\) = 0", lambda t: mc(model=ZERO_GAIN))
+bad(CROSS, "monte_carlo", ValueError, "branches P1, P2 of `model` cross", lambda t: mc(model=CROSSING))
+bad(MU, "monte_carlo", ValueError, "v = \\+h_m does not put the output on P1", lambda t: mc(design=SMALL_H))
 
 # --- refine, fit, crlb
 T_R = 300
@@ -364,13 +359,11 @@ def fit(recordings=REC, **kw):
     return hbjax.fit(recordings, **{**FIT, **kw})
 
 
-H_M_CHECK = "_recordings.check_h_m should refuse strings and bools before float()"
-TOL_CHECK = "refine should check `rtol`/`atol`: finite real numbers > 0, named in the error"
 bad(WRONG_TYPE, "refine", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: hbjax.refine(BL, REC))
 bad(WRONG_TYPE, "refine", TypeError, "`recordings` must be a \\(v, y\\) pair or a non-empty list", lambda t: hbjax.refine(MN, "data.csv"))
 bad(WRONG_TYPE, "refine", TypeError, "`recordings\\[1\\]` must be a \\(v, y\\) pair", lambda t: hbjax.refine(MN, [REC, (V_R,)]))
-bad(WRONG_TYPE, "refine", TypeError, "`h_m` must be a real number", lambda t: hbjax.refine(MN, REC, h_m="4"), xfail=H_M_CHECK)
-bad(WRONG_TYPE, "refine", TypeError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol="a"), xfail=TOL_CHECK)
+bad(WRONG_TYPE, "refine", TypeError, "`h_m` must be a real number", lambda t: hbjax.refine(MN, REC, h_m="4"))
+bad(WRONG_TYPE, "refine", TypeError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol="a"))
 bad(WRONG_TYPE, "crlb", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: hbjax.crlb(BL, REC, noise_std=0.1))
 bad(WRONG_TYPE, "crlb", TypeError, "`noise_std` must be a real number, got 'x'", lambda t: hbjax.crlb(MN, REC, noise_std="x", h_m=H_M))
 bad(WRONG_TYPE, "fit", TypeError, "`starts` must be an integer, got '4'", lambda t: fit(starts="4"))
@@ -383,7 +376,7 @@ bad(EMPTY, "fit", ValueError, "`recordings` must hold at least 2 samples, got 0"
 bad(NONFINITE, "refine", ValueError, "`recordings y` contains NaN or inf \\(1 samples, first at index 299\\)", lambda t: hbjax.refine(MN, (V_R, with_nan(Y_R, 299))))
 bad(NONFINITE, "fit", ValueError, "`recordings v` contains NaN or inf", lambda t: fit((with_nan(V_R, 0, np.inf), Y_R)))
 bad(NONFINITE, "crlb", ValueError, "`noise_std` must be a finite number > 0, got nan", lambda t: hbjax.crlb(MN, REC, noise_std=np.nan, h_m=H_M))
-bad(NONFINITE, "refine", ValueError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol=np.nan), xfail=TOL_CHECK + " (now: 256 steps, then 'did not converge')")
+bad(NONFINITE, "refine", ValueError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol=np.nan))
 bad(NONFINITE, "crlb", ValueError, "`recordings y` contains NaN or inf", lambda t: hbjax.crlb(MN, (V_R, with_nan(Y_R)), noise_std=0.1, h_m=H_M))
 bad(DTYPE, "refine", TypeError, "`recordings y` must be real", lambda t: hbjax.refine(MN, (V_R, Y_R + 0j)))
 bad(ORDER, "fit", ValueError, "`na` must be an integer >= 0, got -1", lambda t: fit(na=-1))
@@ -392,7 +385,7 @@ bad(ORDER, "fit", TypeError, "`m` must be an integer, got 2.0", lambda t: fit(m=
 bad(ORDER, "fit", ValueError, "`starts` must be an integer >= 1, got 0", lambda t: fit(starts=0))
 bad(ORDER, "refine", ValueError, "`max_steps` must be an integer >= 1, got 0", lambda t: hbjax.refine(MN, REC, max_steps=0))
 bad(ORDER, "refine", TypeError, "`max_steps` must be an integer, got 2.5", lambda t: hbjax.refine(MN, REC, max_steps=2.5))
-bad(ORDER, "refine", ValueError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol=-1.0), xfail=TOL_CHECK + " (now: a negative rtol is accepted)")
+bad(ORDER, "refine", ValueError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol=-1.0))
 bad(H_M_BAD, "refine", ValueError, "`h_m` must be a finite number > 0, got 0", lambda t: hbjax.refine(MN, REC, h_m=0))
 bad(H_M_BAD, "crlb", ValueError, "`h_m` must be a finite number > 0, got -1", lambda t: hbjax.crlb(MN, REC, noise_std=0.1, h_m=-1))
 bad(OPTION, "refine", ValueError, "`criterion` must be one of \\('prediction', 'simulation'\\), got 'mse'", lambda t: hbjax.refine(MN, REC, criterion="mse"))
@@ -406,15 +399,15 @@ bad(MU, "refine", ValueError, "mu = P2\\(-h_m\\) - P1\\(h_m\\) is 0.0 for the in
 bad(MU, "crlb", ValueError, "`model` is not normalised: P2\\(-h_m\\) - P1\\(h_m\\) = -5.52, expected 1", lambda t: hbjax.crlb(M, REC, noise_std=0.1, h_m=H_M))
 bad(KEY, "fit", TypeError, "`key` must be a (single )?JAX PRNG key .*got 0", lambda t: fit(key=0))
 bad(KEY, "fit", TypeError, "`key` must be a (single )?JAX PRNG key .*float64", lambda t: fit(key=jnp.zeros(2)))
-bad(KEY, "fit", TypeError, "`key` must be a (single )?JAX PRNG key", lambda t: fit(key=jax.random.split(KEY0, 2)), xfail="fit should refuse a batch of keys by name (now: jax's 'split accepts a single key')")
-bad(IDENT, "crlb", ValueError, "[Ff]isher information is singular", lambda t: hbjax.crlb(MN, (V_R[:3], Y_R[:3]), noise_std=0.1, h_m=H_M), xfail=CRLB_RANK)
-bad(IDENT, "crlb", ValueError, "[Ff]isher information is singular", lambda t: hbjax.crlb(MN, (np.full(T_R, H_M), Y_R), noise_std=0.1, h_m=H_M), xfail=CRLB_RANK)
+bad(KEY, "fit", TypeError, "`key` must be a (single )?JAX PRNG key", lambda t: fit(key=jax.random.split(KEY0, 2)))
+bad(IDENT, "crlb", ValueError, "[Ff]isher information is singular", lambda t: hbjax.crlb(MN, (V_R[:3], Y_R[:3]), noise_std=0.1, h_m=H_M))
+bad(IDENT, "crlb", ValueError, "[Ff]isher information is singular", lambda t: hbjax.crlb(MN, (np.full(T_R, H_M), Y_R), noise_std=0.1, h_m=H_M))
 
 bad(WRONG_TYPE, "separable_ls", TypeError, "`model` must be an hbjax.Hammerstein", lambda t: hbjax.separable_ls(ARX, REC))
 bad(NONFINITE, "separable_ls", ValueError, "`recordings v` contains NaN or inf", lambda t: hbjax.separable_ls(MN, (with_nan(V_R), Y_R), h_m=H_M))
 bad(SHORT, "separable_ls", ValueError, "`recordings` hold 5 samples; 9 free parameters need more", lambda t: hbjax.separable_ls(MN, (V_R[:5], Y_R[:5]), h_m=H_M))
 bad(MU, "separable_ls", ValueError, "mu = P2\\(-h_m\\) - P1\\(h_m\\) is 0.0", lambda t: hbjax.separable_ls(MU_ZERO_AT_1, REC, h_m=1.0))
-bad(ORDER, "separable_ls", ValueError, "`rtol`", lambda t: hbjax.separable_ls(MN, REC, h_m=H_M, rtol=-1.0), xfail=TOL_CHECK + " (separable_ls too)")
+bad(ORDER, "separable_ls", ValueError, "`rtol`", lambda t: hbjax.separable_ls(MN, REC, h_m=H_M, rtol=-1.0))
 
 # --- diagnose
 T_D = 600
@@ -533,9 +526,6 @@ class Traced:
     xfail_jit: str | None = None  # a known gap under jax.jit / eqx.filter_jit only
 
 
-CONSTANT_MODEL = ("{0} inside jax.jit with a closed-over (concrete) model fails with a "
-                  "ConcretizationTypeError: {1} calls float() on jnp results, which are traced "
-                  "inside jit; compute the check with NumPy on the concrete leaves")
 TRACED = [
     Traced("simulate (v)", lambda v: hbjax.simulate(M, v), V, with_nan(V), "`v` contains NaN or inf"),
     Traced("simulate (noise)", lambda xi: hbjax.simulate(M, V, xi), np.zeros(60), with_nan(np.zeros(60), 0, np.inf), "`noise` contains NaN or inf"),
@@ -546,8 +536,8 @@ TRACED = [
     Traced("predict (model)", lambda a: hbjax.predict(model_with(a=a), V, Y), np.asarray(ARX.a), with_nan(ARX.a, 0), "`model` has NaN or inf coefficients"),
     Traced("normalise (h_m <= 0)", lambda h: hbjax.normalise(M, h).arx.b, H_M, 0.0, "`h_m` must be > 0"),
     Traced("normalise (mu = 0)", lambda h: hbjax.normalise(MU_ZERO_AT_1, h).arx.b, 2.0, 1.0, "mu = P2\\(-h_m\\) - P1\\(h_m\\) is 0"),
-    Traced("crlb (y)", lambda y: hbjax.crlb(MN, (V_R, y), noise_std=0.1, h_m=H_M).covariance, Y_R, with_nan(Y_R, 7), "`recordings y` contains NaN or inf", xfail_jit=CONSTANT_MODEL.format("crlb", "_check_normalised")),
-    Traced("refine (y)", lambda y: hbjax.refine(MN, (V_R, y), h_m=H_M, max_steps=4, throw=False).model, Y_R, with_nan(Y_R, 7), "`recordings y` contains NaN or inf", xfail_jit=CONSTANT_MODEL.format("refine", "_check_gauge")),
+    Traced("crlb (y)", lambda y: hbjax.crlb(MN, (V_R, y), noise_std=0.1, h_m=H_M).covariance, Y_R, with_nan(Y_R, 7), "`recordings y` contains NaN or inf"),
+    Traced("refine (y)", lambda y: hbjax.refine(MN, (V_R, y), h_m=H_M, max_steps=4, throw=False).model, Y_R, with_nan(Y_R, 7), "`recordings y` contains NaN or inf"),
     Traced("identify_giri (y2)", lambda y2: hbjax.identify_giri(D, records()[0], y2, records()[2], throw=False).result, records()[1], with_nan(records()[1], 100), "`y2` contains NaN or inf"),
 ]
 
