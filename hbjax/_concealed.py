@@ -17,6 +17,7 @@ import numpy as np
 from . import _effects as fx
 from ._arx import ARX
 from ._backlash import Backlash
+from ._checks import positive_int
 from ._model import Hammerstein, play_trajectory
 from ._simulate import simulate
 
@@ -82,7 +83,16 @@ def concealed_recording(effect: str | None, *, system: int = 0, inputs: str = "s
     if effect is not None and effect not in fx.EFFECTS:
         raise ValueError(f"unknown `effect` {effect!r}; known: {sorted(fx.EFFECTS)}.")
     systems = base_systems()
-    if not (isinstance(system, int) and 0 <= system < len(systems)):
+    n = positive_int(n, "n")
+    if isinstance(noise, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"`noise` must be a real number, got {noise!r}.")
+    if not (np.isfinite(float(noise)) and float(noise) >= 0):
+        raise ValueError(f"`noise` must be a finite number >= 0, got {noise!r}.")
+    if key is not None and not (isinstance(key, jax.Array) and (
+            jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+            or (key.dtype == jnp.uint32 and key.shape == (2,)))):
+        raise TypeError(f"`key` must be a JAX PRNG key or None, got {key!r}.")
+    if isinstance(system, bool) or not (isinstance(system, int) and 0 <= system < len(systems)):
         raise ValueError(f"`system` must be an index 0..{len(systems) - 1}, got {system!r}.")
     key = jax.random.PRNGKey(0) if key is None else key
     seed = int(jax.random.randint(key, (), 0, 2**31 - 1))

@@ -144,6 +144,10 @@ def _jsonable(x):
 def _check_inputs(model, v, y, holdout, effects, key):
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    if not model.arx.is_stable():
+        # Its free run diverges: every simulation-based statistic would be inf/NaN.
+        raise ValueError("the nominal `model` has an unstable A (assumption A3): its free run "
+                         "diverges; start from a stable nominal model.")
     v = check_finite(as_float_array(v, "v", ndim=1), "v")
     y = check_finite(as_float_array(y, "y", ndim=1), "y")
     same_length(v=v, y=y)
@@ -163,6 +167,9 @@ def _check_inputs(model, v, y, holdout, effects, key):
     else:
         if isinstance(effects, str):
             effects = [effects]
+        if not isinstance(effects, (list, tuple, set, frozenset)):
+            raise TypeError(f"`effects` must be a list of names from hbjax.EFFECTS, got "
+                            f"{type(effects).__name__}.")
         effects = list(effects)
         unknown = [e for e in effects if e not in EFFECTS]
         if unknown:
