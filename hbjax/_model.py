@@ -101,7 +101,7 @@ class Hammerstein(AbstractModel):
             return (u_t, y_lags, u_lags), y_t
 
         init = (jnp.asarray(u0, v.dtype), (zero,) * na, (zero,) * nb)
-        _, y = jax.lax.scan(step, init, (v, noise))
+        _, y = jax.lax.scan(step, init, (v, noise), unroll=2)
         return y
 
     def predict_trajectory(self, v, y, u0):
