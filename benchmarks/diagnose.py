@@ -119,8 +119,9 @@ def main():
     lines = [
         "## diagnosis",
         "",
-        f"Machine: {machine()}; load average at the end {load[0]:.1f} "
-        "(other jobs shared the 2 cores while this ran).",
+        f"Machine: {machine()}; 1-minute load average at the end {load[0]:.1f} on "
+        f"{os.cpu_count()} cores (this run included; timings taken under heavier load are "
+        "slower).",
         "",
         f"- One `hbjax.diagnose` of a {N}-sample record, all {cold['n_candidates']} candidates, "
         f"fresh process (compilation included): **{cold['cold']:.1f} s** "

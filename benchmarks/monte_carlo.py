@@ -203,9 +203,9 @@ def main():
 Machine: {describe()}. Default system and design (n=2, m=3, h_m=4), white equation noise
 std {NOISE_STD}, **{R} realisations x 3 experiments x T = {T} samples**, full closed-form
 identification (offset with transient search, LS (26), Vandermonde (45)-(46), diagnostics and
-result codes). Best of 3 runs after compilation. The machine is shared with other jobs
-(1-minute load average {load_before:.1f} at the start of this run, {load_after:.1f} at the end,
-on {cores} cores), so absolute timings are noisy; all sides ran under the same conditions.
+result codes). Best of 3 runs after compilation. 1-minute load average {load_before:.1f} at
+the start of this run and {load_after:.1f} at the end, on {cores} cores (timings under load are
+noisy); all sides ran under the same conditions.
 
 | implementation | compile (s) | run (s) | realisations/s | vs NumPy | vs Numba parallel |
 |---|---|---|---|---|---|
