@@ -5,6 +5,7 @@ Run: ``.venv/bin/python benchmarks/simulate.py [--batch 1000 --length 10000]``.
 """
 
 import argparse
+import os
 import time
 
 import jax
@@ -129,7 +130,8 @@ def main():
         ("memory floor: one jitted pass y = v + xi, no recursion", t_floor),
     ]
     lines = [
-        f"Machine: {describe()}",
+        f"Machine: {describe()}; 1-minute load average {os.getloadavg()[0]:.1f} at the end "
+        f"(on {os.cpu_count()} cores).",
         f"Problem: B = {B} trajectories x T = {T} samples, float64, n = 2, m = 3 (default system); best of {args.repeats}.",
         "",
         "| implementation | wall time (s) | Msamples/s | hbjax speed-up |",
