@@ -17,6 +17,16 @@ def polyval_ascending(c: Float[Array, " m"], v):
     return out
 
 
+def power_columns(v: Float[Array, " time"], m: int) -> Float[Array, "time m"]:
+    """``[1, v, v^2, ..., v^(m-1)]`` as columns, by repeated multiplication: the regressors
+    of eq. (1). ``v ** arange(m)`` would call ``pow`` per entry, which dominated the cost of
+    the refinement Jacobian."""
+    cols = [jnp.ones_like(v)]
+    for _ in range(1, m):
+        cols.append(cols[-1] * v)
+    return jnp.stack(cols, axis=-1)
+
+
 class Backlash(eqx.Module):
     """Hysteresis-backlash flanked by two polynomials, paper eq. (1) and Fig. 2.
 

@@ -13,7 +13,7 @@ from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Bool, Float
 
 from ._arx import ARX
-from ._backlash import Backlash, polyval_ascending
+from ._backlash import Backlash, polyval_ascending, power_columns
 from ._model import Hammerstein
 
 PREDICTION = "prediction"
@@ -222,7 +222,7 @@ def _internal(theta, x, na, nb, lower_is_p1):
     on_p1 = valid & (on_high != lower_is_p1)
     on_p2 = valid & ~on_p1
     xs = x[idx]
-    powers = xs[:, None] ** jnp.arange(m)[None, :]
+    powers = power_columns(xs, m)
     grad = jnp.concatenate([powers * on_p1[:, None], powers * on_p2[:, None]], axis=1)
     k = jnp.arange(1, m)
     d1 = polyval_ascending(c1[1:] * k, xs) if m > 1 else jnp.zeros_like(xs)

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._backlash import polyval_ascending
+from ._backlash import polyval_ascending, power_columns
 
 #: largest extra delay (samples) the extended simulator can represent
 MAX_DELAY = 12
@@ -232,7 +232,7 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
     T = v.shape[0]
     t = jnp.arange(T)
     s = (t >= ints[1]).astype(v.dtype)
-    powers = (v[:, None] ** jnp.arange(m)) if m > 1 else jnp.ones((T, 1), v.dtype)
+    powers = power_columns(v, m)
     extra = (v / consts[0]) ** m
     p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
     p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
@@ -289,7 +289,7 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
     T = v.shape[0]
     t = jnp.arange(T)
     s = (t >= ints[1]).astype(v.dtype)
-    powers = (v[:, None] ** jnp.arange(m)) if m > 1 else jnp.ones((T, 1), v.dtype)
+    powers = power_columns(v, m)
     extra = (v / consts[0]) ** m
     p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
     p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
