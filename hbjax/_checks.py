@@ -93,3 +93,17 @@ def positive_int(x, name: str, *, minimum: int = 1) -> int:
     if x < minimum:
         raise ValueError(f"`{name}` must be an integer >= {minimum}, got {x}.")
     return int(x)
+
+
+def positive_float(x, name: str) -> float:
+    """A concrete finite number > 0 (an amplitude such as ``h_m``)."""
+    # Strings and booleans convert with float() but are not amplitudes.
+    if isinstance(x, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"`{name}` must be a real number, got {x!r}.")
+    try:
+        val = float(x)
+    except (TypeError, ValueError):
+        raise TypeError(f"`{name}` must be a real number, got {x!r}.") from None
+    if not np.isfinite(val) or val <= 0:
+        raise ValueError(f"`{name}` must be a finite number > 0, got {x!r}.")
+    return val

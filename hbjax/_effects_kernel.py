@@ -220,6 +220,19 @@ def _iir_fft(a, num):
     return jnp.fft.irfft(jnp.fft.rfft(num, nfft) / den, nfft)[:T]
 
 
+def _branches(lay: Layout, theta, ints, consts, v):
+    """Time index, change indicator ``s(t)``, branch regressors and the extended branches
+    ``P1``, ``P2`` at every sample (the band is ``L = min``, ``H = max`` of them)."""
+    g = lambda name: lay.get(theta, name)  # noqa: E731
+    t = jnp.arange(v.shape[0])
+    s = (t >= ints[1]).astype(v.dtype)
+    powers = power_columns(v, lay.m)
+    extra = (v / consts[0]) ** lay.m
+    p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
+    p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
+    return t, s, powers, extra, p1, p2
+
+
 def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
                           output_static: bool = True, criterion: str = "prediction"):
     """Prediction error of the extended model for fitting (see the comment above);
@@ -227,15 +240,9 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
     transient. ``output_static=False`` drops the output clip and curvature (and the FFT
     they need) for candidates that keep them neutral. ``criterion="simulation"`` returns
     the output error ``y - y_sim = w / A`` instead (no noise model)."""
-    na, nb, m = lay.na, lay.nb, lay.m
+    na, nb = lay.na, lay.nb
     g = lambda name: lay.get(theta, name)  # noqa: E731
-    T = v.shape[0]
-    t = jnp.arange(T)
-    s = (t >= ints[1]).astype(v.dtype)
-    powers = power_columns(v, m)
-    extra = (v / consts[0]) ** m
-    p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
-    p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
+    t, s, powers, extra, p1, p2 = _branches(lay, theta, ints, consts, v)
     low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
     k, hi = _play_indices(jax.lax.stop_gradient(low), jax.lax.stop_gradient(high), u0)
     kk = jnp.maximum(k, 0)
@@ -287,12 +294,7 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
     P = lay.size
     g = lambda name: lay.get(theta, name)  # noqa: E731
     T = v.shape[0]
-    t = jnp.arange(T)
-    s = (t >= ints[1]).astype(v.dtype)
-    powers = power_columns(v, m)
-    extra = (v / consts[0]) ** m
-    p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
-    p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
+    t, s, powers, extra, p1, p2 = _branches(lay, theta, ints, consts, v)
     low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
     k, hi = _play_indices(low, high, u0)
     kk = jnp.maximum(k, 0)

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import as_float_array, check_finite, is_traced
+from ._checks import as_float_array, check_finite, is_traced, positive_float
 from ._criteria import CRITERIA
 from ._model import Hammerstein
 
@@ -63,19 +63,10 @@ def check_criterion(criterion) -> str:
 
 
 def check_h_m(h_m):
-    if h_m is None:
-        return None
-    if is_traced(h_m):
+    """``None`` (static-gain normalisation), a traced value, or a finite number > 0."""
+    if h_m is None or is_traced(h_m):
         return h_m
-    if isinstance(h_m, (str, bytes, bool, np.bool_)):  # float() would accept these
-        raise TypeError(f"`h_m` must be a real number or None, got {h_m!r}.")
-    try:
-        val = float(h_m)
-    except (TypeError, ValueError):
-        raise TypeError(f"`h_m` must be a real number or None, got {h_m!r}.") from None
-    if not np.isfinite(val) or val <= 0:
-        raise ValueError(f"`h_m` must be a finite number > 0, got {h_m!r}.")
-    return val
+    return positive_float(h_m, "h_m")
 
 
 def check_tolerance(x, name: str) -> float:

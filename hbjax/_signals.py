@@ -3,20 +3,7 @@
 import equinox as eqx
 import numpy as np
 
-from ._checks import positive_int
-
-
-def _positive_float(x, name):
-    # Strings and booleans convert with float() but are not amplitudes.
-    if isinstance(x, (str, bytes, bool, np.bool_)):
-        raise TypeError(f"`{name}` must be a real number, got {x!r}.")
-    try:
-        val = float(x)
-    except (TypeError, ValueError):
-        raise TypeError(f"`{name}` must be a real number, got {x!r}.") from None
-    if not np.isfinite(val) or val <= 0:
-        raise ValueError(f"`{name}` must be a finite number > 0, got {x!r}.")
-    return val
+from ._checks import positive_float, positive_int
 
 
 class GiriDesign(eqx.Module):
@@ -34,7 +21,7 @@ class GiriDesign(eqx.Module):
     def __init__(self, n, m, h_m):
         self.n = positive_int(n, "n")
         self.m = positive_int(m, "m")
-        self.h_m = _positive_float(h_m, "h_m")
+        self.h_m = positive_float(h_m, "h_m")
 
     @property
     def binary_period(self) -> int:
