@@ -95,8 +95,9 @@ def positive_int(x, name: str, *, minimum: int = 1) -> int:
     return int(x)
 
 
-def positive_float(x, name: str) -> float:
-    """A concrete finite number > 0 (an amplitude such as ``h_m``)."""
+def positive_float(x, name: str, *, allow_zero: bool = False) -> float:
+    """A concrete finite number > 0 (or >= 0 with `allow_zero`): an amplitude such as
+    ``h_m``, a noise level, a solver tolerance."""
     # Strings and booleans convert with float() but are not amplitudes.
     if isinstance(x, (str, bytes, bool, np.bool_)):
         raise TypeError(f"`{name}` must be a real number, got {x!r}.")
@@ -104,6 +105,7 @@ def positive_float(x, name: str) -> float:
         val = float(x)
     except (TypeError, ValueError):
         raise TypeError(f"`{name}` must be a real number, got {x!r}.") from None
-    if not np.isfinite(val) or val <= 0:
-        raise ValueError(f"`{name}` must be a finite number > 0, got {x!r}.")
+    if not np.isfinite(val) or val < 0 or (val == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"`{name}` must be a finite number {bound}, got {x!r}.")
     return val

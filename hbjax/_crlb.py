@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import is_traced
+from ._checks import is_traced, positive_float
 from ._config import require_x64
 from ._criteria import PAPER, STATIC_GAIN, Parametrisation, outputs
 from ._model import Hammerstein
@@ -106,12 +106,7 @@ def crlb(model: Hammerstein, recordings, *, noise_std, criterion: str = "predict
     recs = as_recordings(recordings)
     h_m = check_h_m(h_m)
     if not is_traced(noise_std):
-        try:
-            sigma = float(noise_std)
-        except (TypeError, ValueError):
-            raise TypeError(f"`noise_std` must be a real number, got {noise_std!r}.") from None
-        if not np.isfinite(sigma) or sigma <= 0:
-            raise ValueError(f"`noise_std` must be a finite number > 0, got {noise_std!r}.")
+        positive_float(noise_std, "noise_std")
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)) and not is_traced(h_m):
         _check_normalised(model, h_m)
     res = _crlb_jit(model, recs, noise_std=noise_std, criterion=criterion, h_m=h_m)

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from ._checks import is_traced, positive_int
+from ._checks import is_traced, positive_float, positive_int
 from ._config import require_x64
 from ._giri import NONFINITE, estimate_giri, normalise
 from ._model import Hammerstein
@@ -68,19 +68,6 @@ def _check_lengths(lengths, design):
     if len(set(out)) != len(out):
         raise ValueError(f"`lengths` must be distinct, got {out}.")
     return out
-
-
-def _check_noise_std(noise_std):
-    # Strings and booleans convert with float() but are not noise levels.
-    if isinstance(noise_std, (str, bytes, bool, np.bool_)):
-        raise TypeError(f"`noise_std` must be a real number, got {noise_std!r}.")
-    try:
-        val = float(noise_std)
-    except (TypeError, ValueError):
-        raise TypeError(f"`noise_std` must be a real number, got {noise_std!r}.") from None
-    if not np.isfinite(val) or val < 0:
-        raise ValueError(f"`noise_std` must be a finite number >= 0, got {noise_std!r}.")
-    return val
 
 
 def _noise_draw(noise, length):
@@ -341,7 +328,7 @@ def monte_carlo(
     # Orders that match the design, and the true system inside the method's assumptions
     # (A3, A4, A5, a band over the excited range): otherwise every realisation would fail.
     design.check_model(model, assumptions=True)
-    noise_std = _check_noise_std(noise_std)
+    noise_std = positive_float(noise_std, "noise_std", allow_zero=True)
     lengths = _check_lengths(lengths, design)
     realisations = positive_int(realisations, "realisations")
     key = _check_key(key)

@@ -69,19 +69,6 @@ def check_h_m(h_m):
     return positive_float(h_m, "h_m")
 
 
-def check_tolerance(x, name: str) -> float:
-    """A solver tolerance: a finite real number > 0."""
-    if isinstance(x, (str, bytes, bool, np.bool_)):
-        raise TypeError(f"`{name}` must be a real number, got {x!r}.")
-    try:
-        val = float(x)
-    except (TypeError, ValueError):
-        raise TypeError(f"`{name}` must be a real number, got {x!r}.") from None
-    if not (np.isfinite(val) and val > 0):
-        raise ValueError(f"`{name}` must be a finite number > 0, got {x!r}.")
-    return val
-
-
 def check_model(model, name: str = "model") -> None:
     """A concrete-shaped, unbatched :class:`hbjax.Hammerstein`."""
     if not isinstance(model, Hammerstein):

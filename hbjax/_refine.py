@@ -16,14 +16,14 @@ from jaxtyping import Array, Bool, Float
 
 from ._arx import ARX
 from ._backlash import Backlash
-from ._checks import is_traced, positive_int
+from ._checks import is_traced, positive_float, positive_int
 from ._config import require_x64
 from ._criteria import (
     PAPER, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1, residuals,
 )
 from ._model import Hammerstein
 from ._params import flatten_params
-from ._recordings import check_tolerance, as_recordings, check_criterion, check_h_m, check_model, total_samples
+from ._recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 
 
 class RESULTS(optx.RESULTS):  # pyright: ignore
@@ -306,7 +306,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         )
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
         _check_gauge(model, h_m)
-    res = _refine_jit(model, recs, criterion, h_m, max_steps, check_tolerance(rtol, "rtol"), check_tolerance(atol, "atol"))
+    res = _refine_jit(model, recs, criterion, h_m, max_steps, positive_float(rtol, "rtol"), positive_float(atol, "atol"))
     if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
         raise RefinementError(
             f"refine ({criterion} criterion) did not converge: {res.message} "

@@ -11,12 +11,12 @@ import optimistix as optx
 
 from ._arx import ARX
 from ._backlash import Backlash
-from ._checks import is_traced, positive_int
+from ._checks import is_traced, positive_float, positive_int
 from ._config import require_x64
 from ._criteria import PREDICTION, internal_signal, lagged_rows, lower_is_p1
 from ._model import Hammerstein
 from ._params import flatten_params
-from ._recordings import check_tolerance, as_recordings, check_h_m, check_model, total_samples
+from ._recordings import as_recordings, check_h_m, check_model, total_samples
 from ._refine import (
     RESULTS, RefinementError, RefineResult, _check_gauge, _flat_residuals, finish,
     gauge_transform, make_parametrisation, summarise,
@@ -126,8 +126,8 @@ def separable_ls(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 2
                          "parameters need more.")
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
         _check_gauge(model, h_m)
-    res = _separable_jit(model, recs, h_m=h_m, max_steps=max_steps, rtol=check_tolerance(rtol, "rtol"),
-                         atol=check_tolerance(atol, "atol"))
+    res = _separable_jit(model, recs, h_m=h_m, max_steps=max_steps, rtol=positive_float(rtol, "rtol"),
+                         atol=positive_float(atol, "atol"))
     if throw and res.result != RESULTS.successful:
         raise RefinementError(f"separable_ls did not converge: {res.message}.")
     return res
