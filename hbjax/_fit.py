@@ -136,7 +136,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         bl = random_backlash(k, m, scale)
         init = Hammerstein(bl, arx_given_backlash(bl, recordings, na, nb))
         return refine_traceable(init, recordings, criterion=criterion, h_m=None,
-                                max_steps=max_steps, rtol=rtol, atol=atol)
+                                max_steps=max_steps, rtol=rtol, atol=atol, statistics=False)
 
     res = jax.vmap(one)(keys)
     ok = res.result._value == RESULTS.successful._value

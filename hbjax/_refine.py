@@ -19,10 +19,11 @@ from ._backlash import Backlash
 from ._checks import is_traced, positive_float, positive_int
 from ._config import require_x64
 from ._criteria import (
-    PAPER, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1, residuals,
+    PAPER, PREDICTION, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1, residuals,
 )
 from ._model import Hammerstein
 from ._params import flatten_params
+from ._sufficient import gauss_newton_matrix, solve_by_statistics, sum_of_squares
 from ._recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 
 
@@ -134,32 +135,72 @@ def _at_optimum(sol, par, recordings, criterion):
             jax.jacfwd(_flat_residuals)(z, par, recordings, criterion))
 
 
-def summarise(par, z, z0, r, jac, result, steps, recordings, criterion, ok):
-    """Covariance, noise level, stats and final result code at the optimum ``z``.
+def residual_summary(par, z0, r, jac, recordings, criterion):
+    """``(SSR, SSR at z0, J^T J)`` of a solver that evaluates the full residual."""
+    r0 = _flat_residuals(z0, par, recordings, criterion)
+    return jnp.sum(r**2), jnp.sum(r0**2), jac.T @ jac
+
+
+def summarise(par, z, ssr, ssr0, jtj, n, result, steps, ok):
+    """Covariance, noise level, stats and final result code at the optimum ``z``, from the
+    sum of squared residuals ``ssr`` (``ssr0`` at the start), ``J^T J`` and the number of
+    residuals ``n``.
 
     ``cov(theta) = D sigma^2 (J^T J)^+ D^T`` with ``J = dr/dz`` and ``D = dtheta/dz``: the
     usual asymptotic covariance of the least-squares estimate, in the normalised
     parameters (the constraint direction has zero variance).
     """
-    r0 = _flat_residuals(z0, par, recordings, criterion)
-    n, q = r.shape[0], z.shape[0]
-    ssr = jnp.sum(r**2)
+    q = z.shape[0]
     noise_var = ssr / max(n - q, 1)
-    cov_z = noise_var * jnp.linalg.pinv(jac.T @ jac, hermitian=True)
+    cov_z = noise_var * jnp.linalg.pinv(jtj, hermitian=True)
     d = par.jacobian()
     cov = d @ cov_z @ d.T
     finite = jnp.all(jnp.isfinite(z)) & jnp.isfinite(ssr)
     result = RESULTS.where(ok, RESULTS.promote(result), RESULTS.gauge_undefined)
     result = RESULTS.where(finite | ~ok, result, RESULTS.nonfinite)
-    stats = {"steps": steps, "cost": ssr / n, "initial_cost": jnp.sum(r0**2) / n,
+    stats = {"steps": steps, "cost": ssr / n, "initial_cost": ssr0 / n,
              "samples": jnp.asarray(n)}
     return par.model(z), result, stats, cov, jnp.sqrt(noise_var)
 
 
+def _solve_full(par, z0, recordings, criterion, **options):
+    """Levenberg–Marquardt on the full residual: ``(z, result, steps, SSR, SSR0, J^T J)``."""
+    sol = solve(par, z0, recordings, criterion, **options)
+    r, jac = _at_optimum(sol, par, recordings, criterion)
+    ssr, ssr0, jtj = residual_summary(par, z0, r, jac, recordings, criterion)
+    return sol.value, sol.result, sol.stats["num_steps"], ssr, ssr0, jtj
+
+
+def _solve_prediction(par, z0, recordings, **options):
+    """The prediction criterion by sufficient statistics (:mod:`hbjax._sufficient`),
+    finished by the full solve where the play operator's sources did not settle (the step
+    count then adds both stages)."""
+    z, result, steps, gram, unsettled, gram0 = solve_by_statistics(par, z0, recordings,
+                                                                   **options)
+    ssr0 = sum_of_squares(z0, par, gram0)
+
+    def settled_branch(_):
+        return (z, result, steps, sum_of_squares(z, par, gram),
+                gauss_newton_matrix(z, par, gram))
+
+    def full_branch(_):
+        z_end, res, more, ssr, _, jtj = _solve_full(par, z, recordings, PREDICTION, **options)
+        return z_end, res, steps + more, ssr, jtj
+
+    z, result, steps, ssr, jtj = jax.lax.cond(unsettled, full_branch, settled_branch, None)
+    return z, result, steps, ssr, ssr0, jtj
+
+
 def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "prediction",
                      h_m=None, max_steps: int = 256, rtol: float = 1e-7,
-                     atol: float = 1e-7) -> RefineResult:
+                     atol: float = 1e-7, statistics: bool = True) -> RefineResult:
     """Traceable core of :func:`refine`: no checks, never raises, result code in `.result`.
+
+    With ``statistics=True`` (default) the prediction criterion is solved on the Gram matrix
+    of its bilinear regressors, one pass over the data per round (:mod:`hbjax._sufficient`),
+    with the full solve as fallback; ``statistics=False`` takes a pass per
+    Levenberg–Marquardt step (used by multi-start fitting under ``vmap``, where the
+    fallback's ``lax.cond`` would run both branches).
 
     ``recordings`` must already be a tuple of ``(v, y)`` float64 array pairs. Works under
     ``jax.jit`` and ``jax.vmap`` (e.g. over noise realisations with the inputs shared);
@@ -170,11 +211,14 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     # The band's orientation is taken from the (normalised) start and kept fixed.
     par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
     z0 = par.free(flatten_params(start))
-    sol = solve(par, z0, recordings, criterion, max_steps=max_steps, rtol=rtol, atol=atol)
-    r, jac = _at_optimum(sol, par, recordings, criterion)
-    fitted, result, stats, cov, noise_std = summarise(
-        par, sol.value, z0, r, jac, sol.result, sol.stats["num_steps"], recordings,
-        criterion, ok)
+    options = dict(max_steps=max_steps, rtol=rtol, atol=atol)
+    if criterion == PREDICTION and statistics:
+        z, result, steps, ssr, ssr0, jtj = _solve_prediction(par, z0, recordings, **options)
+    else:
+        z, result, steps, ssr, ssr0, jtj = _solve_full(par, z0, recordings, criterion, **options)
+    n = total_samples(recordings)
+    fitted, result, stats, cov, noise_std = summarise(par, z, ssr, ssr0, jtj, n, result,
+                                                      steps, ok)
     return finish(fitted, result, stats, cov, noise_std, par, recordings, criterion)
 
 

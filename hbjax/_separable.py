@@ -19,7 +19,7 @@ from ._params import flatten_params
 from ._recordings import as_recordings, check_h_m, check_model, total_samples
 from ._refine import (
     RESULTS, RefinementError, RefineResult, _check_gauge, _flat_residuals, finish,
-    gauge_transform, make_parametrisation, summarise,
+    gauge_transform, make_parametrisation, residual_summary, summarise,
 )
 
 
@@ -89,9 +89,9 @@ def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: 
     z0 = par.free(flatten_params(start))
     r = _flat_residuals(z, par, recordings, PREDICTION)
     jac = jax.jacfwd(_flat_residuals)(z, par, recordings, PREDICTION)
+    ssr, ssr0, jtj = residual_summary(par, z0, r, jac, recordings, PREDICTION)
     fitted, result, stats, cov, noise_std = summarise(
-        par, z, z0, r, jac, sol.result, sol.stats["num_steps"], recordings, PREDICTION,
-        ok & ok_end)
+        par, z, ssr, ssr0, jtj, r.shape[0], sol.result, sol.stats["num_steps"], ok & ok_end)
     return finish(fitted, result, stats, cov, noise_std, par, recordings, PREDICTION)
 
 

@@ -305,6 +305,70 @@ def test_non_convergence_is_reported(paper):
     assert int(res.stats["steps"]) == 2
 
 
+def _free_start(recs, start, h_m=4.0):
+    import equinox as eqx
+    from hbjax._refine import gauge_transform, make_parametrisation
+
+    par = make_parametrisation(start, recs, h_m)
+    model, _ = gauge_transform(start, par)
+    par = eqx.tree_at(lambda p: p.lower_is_p1, par, C.lower_is_p1(model, recs))
+    return par, par.free(hbjax.flatten_params(model))
+
+
+def test_sufficient_statistics_reproduce_the_full_residual(paper):
+    """``w^T (M^T M) w`` is the sum of squared prediction errors and ``D^T M^T M D`` the
+    Gauss-Newton matrix of the full residual, at a point away from the optimum."""
+    from hbjax import _sufficient as S
+
+    recs = tuple((jnp.asarray(v), jnp.asarray(y)) for v, y in paper["recs"])
+    start = hbjax.unflatten_params(paper["truth"], hbjax.flatten_params(paper["truth"]) * 1.1)
+    par, z = _free_start(recs, start)
+    gram, _ = S.statistics(z, par, recs)
+    flat = lambda zz: jnp.concatenate(C.residuals(zz, par, recs, "prediction"))  # noqa: E731
+    r, jac = flat(z), jax.jacfwd(flat)(z)
+    assert float(S.sum_of_squares(z, par, gram)) == pytest.approx(float(r @ r), rel=1e-10)
+    jtj = jac.T @ jac
+    np.testing.assert_allclose(S.gauss_newton_matrix(z, par, gram), jtj, rtol=1e-9,
+                               atol=1e-9 * float(jnp.max(jnp.abs(jtj))))
+    f = S.gram_factor(gram)
+    np.testing.assert_allclose(f.T @ f, gram, rtol=1e-9, atol=1e-9 * float(jnp.max(gram)))
+
+
+@pytest.mark.parametrize("max_rounds", [None, 1])
+def test_statistics_path_and_its_fallback_match_the_full_solve(paper, monkeypatch, max_rounds):
+    """Rounds on the Gram matrix reach the full solve's optimum; when the play operator's
+    sources have not settled after the allowed rounds, the full solve finishes from there
+    and reaches it too."""
+    from hbjax import _sufficient as S
+
+    if max_rounds is not None:
+        monkeypatch.setattr(S, "MAX_ROUNDS", max_rounds)
+    # A smooth input: where the output leaves the band edge at a turning point depends on
+    # the band, so a start with a narrower band has other sources than the optimum.
+    t = np.arange(N_PAPER)
+    v = 6 * np.sin(2 * np.pi * t / 97) + 2 * np.sin(2 * np.pi * t / 31)
+    y = hbjax.simulate(paper["system"], v, SIGMA * jax.random.normal(jax.random.PRNGKey(5), t.shape))
+    recs = ((jnp.asarray(v), jnp.asarray(y)),)
+    theta = np.array(hbjax.flatten_params(paper["truth"]))
+    theta[4] -= 0.1  # lower P1 and raise P2 by 0.1: another band width
+    theta[7] += 0.1
+    start = hbjax.unflatten_params(paper["truth"], jnp.asarray(theta))
+    par, z0 = _free_start(recs, start)
+    *_, unsettled, _ = S.solve_by_statistics(par, z0, recs, max_steps=256, rtol=1e-7,
+                                             atol=1e-7)
+    assert bool(unsettled) == (max_rounds == 1)  # which path the comparison exercises
+    fast = refine_traceable(start, recs, h_m=4.0)
+    full = refine_traceable(start, recs, h_m=4.0, statistics=False)
+    assert fast.result == RESULTS.successful and full.result == RESULTS.successful
+    np.testing.assert_allclose(hbjax.flatten_params(fast.model),
+                               hbjax.flatten_params(full.model), rtol=1e-7, atol=1e-9)
+    assert float(fast.stats["cost"]) == pytest.approx(float(full.stats["cost"]), rel=1e-9)
+    assert float(fast.stats["initial_cost"]) == pytest.approx(
+        float(full.stats["initial_cost"]), rel=1e-9)
+    np.testing.assert_allclose(fast.covariance, full.covariance, rtol=1e-5,
+                               atol=1e-8 * float(jnp.max(full.covariance)))
+
+
 def test_start_with_crossed_branches_reaches_the_optimum(paper):
     """The closed form's inactive branch, extrapolated to the outer staircase levels, often
     dips through the active one; refining from there must reach the same optimum as

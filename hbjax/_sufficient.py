@@ -1,0 +1,109 @@
+"""Prediction-error refinement through sufficient statistics.
+
+The play operator's output is a branch value at a past input (:func:`hbjax._criteria._internal`):
+``u(t) = G(t) c`` with ``G(t)`` the row of powers ``x(s)^i`` of the *source* instant ``s`` on
+its branch and ``c = [c1, c2]``. While the sources stay fixed, the one-step prediction error
+of eq. (10) is bilinear in the parameters,
+
+    r = y + sum_i a_i y(t-i) - sum_j b_j G(t-j) c = M w,
+    M = [y, y(t-1), ..., y(t-na), G(t-1), ..., G(t-nb)],
+    w = [1, a, -b_1 c, ..., -b_nb c],
+
+so ``||r||^2 = w^T (M^T M) w`` needs only the small Gram matrix ``M^T M`` (``1 + na + 2 m nb``
+square). Levenberg–Marquardt then runs on the short residual ``F w`` (``F^T F = M^T M``)
+instead of the ``T``-long one, and a *round* (one pass over the data) recomputes the
+sources and the Gram at its solution. When a round leaves every source as it was, the frozen
+cost and the true cost coincide around the solution: it is a minimum of the true
+prediction-error cost, the one :func:`hbjax._refine.solve` finds with a pass per step.
+"""
+
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import optimistix as optx
+
+from ._criteria import Parametrisation, _internal, lagged_rows
+
+# Rounds after which sources that still move (the solution keeps crossing switching instants)
+# hand over to the full solve.
+MAX_ROUNDS = 8
+
+
+def statistics(z, par: Parametrisation, recordings):
+    """Gram matrix ``sum_k M_k^T M_k`` over the records and the source code of every sample
+    (``4 s + 2 [on P1] + [on P2]``; ``-4`` before the first clamp) at free parameters ``z``."""
+    theta = par.theta_scaled(z)
+    na, nb, m = par.na, par.nb, par.m
+    gram, codes = 0.0, []
+    for v, y in recordings:
+        _, g, _, idx = _internal(theta, v / par.scale, na, nb, par.lower_is_p1)
+        cols = ([y[:, None]] + [lagged_rows(y, i + 1)[:, None] for i in range(na)]
+                + [lagged_rows(g, j + 1) for j in range(nb)])
+        design = jnp.concatenate(cols, axis=1)
+        gram = gram + jnp.matmul(design.T, design, precision=jax.lax.Precision.HIGHEST)
+        # Columns 0 and m of G are the constant powers of P1 and P2: 1 on the active branch.
+        codes.append(4 * idx + 2 * g[:, 0].astype(jnp.int32) + g[:, m].astype(jnp.int32))
+    return gram, jnp.concatenate(codes)
+
+
+def bilinear_weights(z, par: Parametrisation):
+    """``w = [1, a, -b_1 c, ..., -b_nb c]`` (scaled branch coefficients)."""
+    theta = par.theta_scaled(z)
+    a, b, c = theta[:par.na], theta[par.na:par.na + par.nb], theta[par.na + par.nb:]
+    return jnp.concatenate([jnp.ones(1, theta.dtype), a, -(b[:, None] * c[None, :]).ravel()])
+
+
+def gram_factor(gram):
+    """``F`` with ``F^T F = gram`` (symmetric square root; the Gram may be singular)."""
+    lam, vec = jnp.linalg.eigh(gram)
+    return (vec * jnp.sqrt(jnp.maximum(lam, 0.0))).T
+
+
+def sum_of_squares(z, par, gram):
+    w = bilinear_weights(z, par)
+    return jnp.maximum(w @ gram @ w, 0.0)
+
+
+def gauss_newton_matrix(z, par, gram):
+    """``J^T J`` of the full residual ``r = M w(z)``: ``D^T (M^T M) D``, ``D = dw/dz``."""
+    d = jax.jacfwd(bilinear_weights)(z, par)
+    return d.T @ gram @ d
+
+
+def _reduced_residual(z, args):
+    par, factor = args
+    return factor @ bilinear_weights(z, par)
+
+
+def solve_by_statistics(par: Parametrisation, z0, recordings, *, max_steps, rtol, atol):
+    """Rounds of Levenberg–Marquardt on the frozen-source cost until the sources settle.
+
+    Returns ``(z, result, steps, gram, unsettled, gram0)``: the solution, the optimistix
+    result, the Levenberg–Marquardt steps of all rounds (at most ``max_steps``, else the
+    result says so), the Gram at ``z`` and at ``z0``, and whether the sources still moved
+    after :data:`MAX_ROUNDS` rounds within the step budget (then the caller finishes with
+    the full solve)."""
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.max_norm,
+                                     linear_solver=lx.Normal(lx.Cholesky()))
+    gram0, codes0 = statistics(z0, par, recordings)
+    ok = optx.RESULTS.successful
+
+    def round_(state):
+        z, gram, codes, rounds, steps, _, _ = state
+        sol = optx.least_squares(_reduced_residual, solver, z, args=(par, gram_factor(gram)),
+                                 max_steps=max_steps, throw=False)
+        new_gram, new_codes = statistics(sol.value, par, recordings)
+        settled = jnp.all(new_codes == codes)
+        return (sol.value, new_gram, new_codes, rounds + 1, steps + sol.stats["num_steps"],
+                sol.result, settled)
+
+    def again(state):
+        _, _, _, rounds, steps, result, settled = state
+        return ~settled & (rounds < MAX_ROUNDS) & (result == ok) & (steps < max_steps)
+
+    init = (z0, gram0, codes0, jnp.asarray(0), jnp.asarray(0), ok, jnp.asarray(False))
+    z, gram, _, _, steps, result, settled = jax.lax.while_loop(again, round_, round_(init))
+    in_budget = steps < max_steps
+    result = optx.RESULTS.where(settled | in_budget | (result != ok),
+                                result, optx.RESULTS.nonlinear_max_steps_reached)
+    return z, result, steps, gram, ~settled & in_budget & (result == ok), gram0
