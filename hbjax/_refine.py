@@ -23,7 +23,7 @@ from ._criteria import (
 )
 from ._model import Hammerstein
 from ._params import flatten_params
-from ._sufficient import gauss_newton_matrix, solve_by_statistics, sum_of_squares
+from ._sufficient import gauss_newton_matrix, solve_by_statistics, sum_of_squares, worth_it
 from ._recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 
 
@@ -198,7 +198,8 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
 
     With ``statistics=True`` (default) the prediction criterion is solved on the Gram matrix
     of its bilinear regressors, one pass over the data per round (:mod:`hbjax._sufficient`),
-    with the full solve as fallback; ``statistics=False`` takes a pass per
+    with the full solve as fallback, for orders whose Gram matrix is small
+    (``1 + na + 2 m nb <= 32``); ``statistics=False`` always takes a pass per
     Levenberg–Marquardt step (used by multi-start fitting under ``vmap``, where the
     fallback's ``lax.cond`` would run both branches).
 
@@ -212,7 +213,7 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
     z0 = par.free(flatten_params(start))
     options = dict(max_steps=max_steps, rtol=rtol, atol=atol)
-    if criterion == PREDICTION and statistics:
+    if criterion == PREDICTION and statistics and worth_it(par.na, par.nb, par.m):
         z, result, steps, ssr, ssr0, jtj = _solve_prediction(par, z0, recordings, **options)
     else:
         z, result, steps, ssr, ssr0, jtj = _solve_full(par, z0, recordings, criterion, **options)

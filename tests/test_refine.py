@@ -350,8 +350,8 @@ def test_statistics_path_and_its_fallback_match_the_full_solve(paper, monkeypatc
     y = hbjax.simulate(paper["system"], v, SIGMA * jax.random.normal(jax.random.PRNGKey(5), t.shape))
     recs = ((jnp.asarray(v), jnp.asarray(y)),)
     theta = np.array(hbjax.flatten_params(paper["truth"]))
-    theta[4] -= 0.1  # lower P1 and raise P2 by 0.1: another band width
-    theta[7] += 0.1
+    theta[4] -= 0.05  # lower P1 and raise P2 by 0.05: another band width
+    theta[7] += 0.05
     start = hbjax.unflatten_params(paper["truth"], jnp.asarray(theta))
     par, z0 = _free_start(recs, start)
     *_, unsettled, _ = S.solve_by_statistics(par, z0, recs, max_steps=256, rtol=1e-7,
