@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._residual_tests import windows
+from ._residual_tests import plateaus, windows
 
 
 def _f(x, digits=4):
@@ -62,14 +62,29 @@ def _saturation_report(model, info, signal, what):
 
 def _output_saturation(model, ctx, info):
     lo, hi, mask, frac, sides = _saturation_report(model, info, info["ysim"], "output")
-    stuck = int(np.sum(np.isclose(info["y"], hi))) if hi is not None else 0
+    y = np.asarray(info["y"])
+    where = {"windows": windows(mask, min_gap=5), "output_range": [lo, hi],
+             "regime": "output at its limit"}
+    evidence = {}
+    # where the measurement itself sits exactly at its extreme (model-free): the clipped
+    # windows proper; the model's clip mask is kept as `model_windows`
+    stuck = []
+    for side, s, level in (("lower", -1, lo), ("upper", 1, hi)):
+        sig = plateaus(y, s) if level is not None else None
+        if sig is not None and abs(sig["level"] - level) <= 0.1 * max(abs(level), 1e-12):
+            stuck += sig["windows"]
+            where[f"stuck_at_{side}"] = {"level": sig["level"], "samples": sig["samples"]}
+            evidence[f"samples_at_{side}_level"] = sig["samples"]
+    if stuck:
+        where["model_windows"] = where["windows"]
+        where["windows"] = sorted(stuck)
+    evidence.setdefault("samples_at_upper_level", 0)
     return {
         "physics": (f"The measured output is clipped {sides}: a sensor range, ADC or overflow "
                     f"limit the nominal model does not have ({100 * frac:.1f}% of samples)."),
-        "where": {"windows": windows(mask, min_gap=5), "output_range":
-                  [lo, hi], "regime": "output at its limit"},
+        "where": where,
         "parameters": {"lower": lo, "upper": hi, "clipped_fraction": frac},
-        "evidence": {"samples_at_upper_level": stuck},
+        "evidence": evidence,
     }
 
 

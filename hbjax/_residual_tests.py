@@ -141,3 +141,41 @@ def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
     """``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` (MATLAB ``compare``'s NRMSE fit)."""
     den = np.linalg.norm(y - y.mean())
     return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / (den or 1.0)))
+
+
+def _runs_of_equal(x: np.ndarray, tol: float):
+    """``(start, stop, value)`` of every maximal run of consecutive samples equal up to
+    ``tol``."""
+    if x.size == 0:
+        return []
+    brk = np.flatnonzero(np.abs(np.diff(x)) > tol) + 1
+    starts = np.concatenate([[0], brk])
+    stops = np.concatenate([brk, [x.size]])
+    return [(int(a), int(b), float(x[a])) for a, b in zip(starts, stops)]
+
+
+def plateaus(y: np.ndarray, side: int, *, min_samples: int = 5, min_run: int = 3) -> dict | None:
+    """Model-free clipping signature: the measured output sits *exactly* at its extreme
+    value (``side`` +1: maximum, -1: minimum) for runs of consecutive samples.
+
+    A continuous signal plus noise never repeats a value; a quantised one repeats values
+    at every level. So the signature requires at least ``min_samples`` samples at the
+    extreme, a run of at least ``min_run`` there, and that run at least twice as long as
+    the longest run at any other value. Returns ``{"level", "samples", "longest_run",
+    "longest_run_elsewhere", "windows"}`` (``windows``: the ``[start, stop)`` runs of two
+    or more samples at the level) or ``None``."""
+    y = np.asarray(y, dtype=float)
+    if y.size < 2:
+        return None
+    tol = 1e-9 * (float(np.ptp(y)) or 1.0)
+    level = float(np.max(y) if side > 0 else np.min(y))
+    at = np.abs(y - level) <= tol
+    runs = _runs_of_equal(y, tol)
+    on = [(a, b) for a, b, val in runs if abs(val - level) <= tol]
+    longest = max((b - a for a, b in on), default=0)
+    elsewhere = max((b - a for a, b, val in runs if abs(val - level) > tol), default=1)
+    if int(at.sum()) < min_samples or longest < min_run or longest < 2 * elsewhere:
+        return None
+    return {"level": level, "samples": int(at.sum()), "longest_run": int(longest),
+            "longest_run_elsewhere": int(elsewhere),
+            "windows": [[a, b] for a, b in on if b - a >= 2]}

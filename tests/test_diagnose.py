@@ -249,3 +249,57 @@ def test_reports_are_json_and_models_run(study):
             y_sim = np.asarray(hbjax.simulate(f.model, rec.v))
             assert np.all(np.isfinite(y_sim))
             assert f.physics and isinstance(f.where, dict)
+
+
+# --- real recording: the cascaded tanks' 10 V sensor clip ------------------------------
+
+
+def test_plateau_signature():
+    est, val = hbjax.datasets.cascaded_tanks()
+    sig = hbjax._residual_tests.plateaus(est.y, +1)
+    assert sig["level"] == 10.0 and sig["windows"] == [[150, 177], [892, 912]]
+    assert hbjax._residual_tests.plateaus(val.y, +1)["windows"] == [[152, 165], [722, 746]]
+    assert hbjax._residual_tests.plateaus(est.y, -1) is None
+    rng = np.random.default_rng(0)
+    smooth = np.sin(np.arange(2000) / 50) + 0.01 * rng.standard_normal(2000)
+    assert hbjax._residual_tests.plateaus(smooth, +1) is None
+    assert hbjax._residual_tests.plateaus(np.minimum(smooth, 0.8), +1)["level"] == 0.8
+
+
+@pytest.fixture(scope="module")
+def tanks():
+    from hbjax._baseline import identify_nominal
+
+    est, val = hbjax.datasets.cascaded_tanks()
+    start = identify_nominal(est.v, est.y, na=2, nb=2, m=3)
+    nominal = identify_nominal(est.v, est.y, start=start, criterion="simulation", transient=100)
+    # the estimation record is fitted, the validation record (appended) is the held-out part
+    v, y = np.concatenate([est.v, val.v]), np.concatenate([est.y, val.y])
+    return est, val, nominal, hbjax.diagnose(nominal, v, y, holdout=0.5, criterion="simulation")
+
+
+@pytest.mark.slow
+def test_cascaded_tanks_sensor_clip_found_and_located(tanks):
+    est, val, nominal, d = tanks
+    assert d.n_fit == len(est.y) and d.n_holdout == len(val.y)
+    f = d.best
+    assert f is not None and f.effect == "output_saturation", d.summary()
+    assert f.parameters["lower"] is None and abs(f.parameters["upper"] - 10.0) <= 1.0
+    # located: the windows are the runs of samples stuck at 10 V, in both records
+    stuck = np.flatnonzero(np.concatenate([est.y, val.y]) >= 10.0)
+    covered = np.zeros(len(est.y) + len(val.y), bool)
+    for a, b in f.where["windows"]:
+        covered[a:b] = True
+    assert covered[stuck].all() and covered.sum() == len(stuck)
+    assert any(a >= len(est.y) for a, _ in f.where["windows"])  # held-out clips too
+    # the validation record's simulation fit improves, significantly
+    assert f.metric == "simulation" and f.fit_after > f.fit_before
+    assert f.evidence["dm_z"] > 2 and f.evidence["delta_bic_vs_nominal"] > 10
+    y_nom = np.asarray(hbjax.simulate(nominal, d.v))
+    y_new = np.asarray(hbjax.simulate(f.model, d.v))
+    np.testing.assert_allclose(y_new, np.minimum(y_nom, f.parameters["upper"]), atol=1e-9)
+    n = len(est.y)
+    fit = hbjax._residual_tests.fit_percent
+    assert fit(val.y, y_new[n:]) == pytest.approx(f.fit_after)
+    assert fit(val.y, y_new[n:]) > fit(val.y, y_nom[n:])
+    json.dumps(d.to_dict())
