@@ -46,7 +46,8 @@ def worth_it(na: int, nb: int, m: int) -> bool:
 
 def statistics(z, par: Parametrisation, recordings):
     """Gram matrix ``sum_k M_k^T M_k`` over the records and the source code of every sample
-    (``4 s + 2 [on P1] + [on P2]``; ``-4`` before the first clamp) at free parameters ``z``."""
+    (``4 s + 2 [on P1] + [on P2]``; 0 while the output is still ``u(-1)``) at free
+    parameters ``z``."""
     theta = par.theta_scaled(z)
     na, nb, m = par.na, par.nb, par.m
     gram, codes = 0.0, []
