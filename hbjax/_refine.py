@@ -23,7 +23,7 @@ from ._criteria import (
 )
 from ._model import Hammerstein
 from ._params import flatten_params
-from ._sufficient import gauss_newton_matrix, solve_by_statistics, sum_of_squares, worth_it
+from ._sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 from ._recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 
 
@@ -175,17 +175,16 @@ def _solve_prediction(par, z0, recordings, **options):
     """The prediction criterion by sufficient statistics (:mod:`hbjax._sufficient`),
     finished by the full solve where the play operator's sources did not settle (the step
     count then adds both stages)."""
-    z, result, steps, gram, unsettled, gram0 = solve_by_statistics(par, z0, recordings,
-                                                                   **options)
-    ssr0 = sum_of_squares(z0, par, gram0)
+    z, result, steps, gram, ssr, unsettled, ssr0 = solve_by_statistics(par, z0, recordings,
+                                                                       **options)
 
     def settled_branch(_):
-        return (z, result, steps, sum_of_squares(z, par, gram),
-                gauss_newton_matrix(z, par, gram))
+        return z, result, steps, ssr, gauss_newton_matrix(z, par, gram)
 
     def full_branch(_):
-        z_end, res, more, ssr, _, jtj = _solve_full(par, z, recordings, PREDICTION, **options)
-        return z_end, res, steps + more, ssr, jtj
+        z_end, res, more, ssr_end, _, jtj = _solve_full(par, z, recordings, PREDICTION,
+                                                        **options)
+        return z_end, res, steps + more, ssr_end, jtj
 
     z, result, steps, ssr, jtj = jax.lax.cond(unsettled, full_branch, settled_branch, None)
     return z, result, steps, ssr, ssr0, jtj

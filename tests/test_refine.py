@@ -323,15 +323,32 @@ def test_sufficient_statistics_reproduce_the_full_residual(paper):
     recs = tuple((jnp.asarray(v), jnp.asarray(y)) for v, y in paper["recs"])
     start = hbjax.unflatten_params(paper["truth"], hbjax.flatten_params(paper["truth"]) * 1.1)
     par, z = _free_start(recs, start)
-    gram, _ = S.statistics(z, par, recs)
+    gram, _, ssr = S.statistics(z, par, recs)
     flat = lambda zz: jnp.concatenate(C.residuals(zz, par, recs, "prediction"))  # noqa: E731
     r, jac = flat(z), jax.jacfwd(flat)(z)
-    assert float(S.sum_of_squares(z, par, gram)) == pytest.approx(float(r @ r), rel=1e-10)
+    assert float(ssr) == pytest.approx(float(r @ r), rel=1e-12)
+    w = S.bilinear_weights(z, par)
+    assert float(w @ gram @ w) == pytest.approx(float(r @ r), rel=1e-10)
     jtj = jac.T @ jac
     np.testing.assert_allclose(S.gauss_newton_matrix(z, par, gram), jtj, rtol=1e-9,
                                atol=1e-9 * float(jnp.max(jnp.abs(jtj))))
     f = S.gram_factor(gram)
     np.testing.assert_allclose(f.T @ f, gram, rtol=1e-9, atol=1e-9 * float(jnp.max(gram)))
+
+
+def test_statistics_path_reports_the_cost_of_low_noise_data(paper):
+    """``w^T (M^T M) w`` cancels ``||y||^2`` against the fit: the reported cost, noise level
+    and covariance come from the residual itself, so they stay right when the noise is tiny."""
+    design, system = paper["design"], paper["system"]
+    recs = tuple((jnp.asarray(v), jnp.asarray(y)) for v, y in
+                 paper_records(system, design, N_PAPER, jax.random.PRNGKey(8), sigma=1e-8))
+    start = hbjax.unflatten_params(paper["truth"], hbjax.flatten_params(paper["truth"]) * 1.05)
+    fast = refine_traceable(start, recs, h_m=4.0)
+    full = refine_traceable(start, recs, h_m=4.0, statistics=False)
+    assert fast.result == RESULTS.successful
+    assert float(fast.stats["cost"]) == pytest.approx(float(full.stats["cost"]), rel=1e-6)
+    assert float(fast.noise_std) == pytest.approx(1e-8, rel=0.05)
+    np.testing.assert_allclose(fast.std, full.std, rtol=1e-4)
 
 
 @pytest.mark.parametrize("max_rounds", [None, 1])
