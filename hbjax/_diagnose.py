@@ -462,6 +462,22 @@ def _decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y
     return [f for _, f in findings]
 
 
+def _best_level(sse, levels, side, start, reach):
+    """Clip level on one ``side`` (in ``s * y`` units, ``s = +1`` upper, ``-1`` lower)
+    minimising ``sse(lower, upper)`` with the other side at ``levels``: a grid of 401 levels
+    on ``[start, reach]``, then 201 around the best (the cost is piecewise smooth in the
+    level and cheap to evaluate on a fixed simulation)."""
+    s = 1 if side == "upper" else -1
+
+    def cost(lev):
+        trial = dict(levels, **{side: s * lev})
+        return sse(trial["lower"], trial["upper"])
+
+    coarse = np.linspace(start, reach, 401)
+    best = min(coarse, key=cost)
+    step = (reach - start) / 400
+    return float(min(np.linspace(best - step, best + step, 201), key=cost))
+
 
 def _clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names, criterion,
                      tests):
@@ -513,18 +529,9 @@ def _clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, name
         start = s * sig[side]["level"] - 0.2 * span
         if reach <= start:
             continue
-        best = None
-        for grid in (np.linspace(start, reach, 401), None):
-            if grid is None:  # refine around the coarse optimum
-                step = (reach - start) / 400
-                grid = np.linspace(best[1] - step, best[1] + step, 201)
-            for lev in grid:
-                trial = dict(levels, **{side: s * lev})
-                val = sse(trial["lower"], trial["upper"])
-                if best is None or val < best[0]:
-                    best = (val, lev)
-        if best[1] < reach:
-            levels[side] = s * best[1]
+        best = _best_level(sse, levels, side, start, reach)
+        if best < reach:
+            levels[side] = s * best
     lo, hi = levels["lower"], levels["upper"]
     k = int(np.isfinite(lo)) + int(np.isfinite(hi))
     if k == 0:
