@@ -19,12 +19,13 @@ from ._backlash import Backlash
 from ._checks import is_traced, positive_float, positive_int
 from ._config import require_x64
 from ._criteria import (
-    PAPER, PREDICTION, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1, residuals,
+    PAPER, PREDICTION, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1,
+    residuals,
 )
 from ._model import Hammerstein
 from ._params import flatten_params
-from ._sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 from ._recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
+from ._sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 
 
 class RESULTS(optx.RESULTS):  # pyright: ignore

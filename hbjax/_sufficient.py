@@ -96,11 +96,14 @@ def _reduced_residual(z, args):
 def solve_by_statistics(par: Parametrisation, z0, recordings, *, max_steps, rtol, atol):
     """Rounds of Levenberg–Marquardt on the frozen-source cost until the sources settle.
 
+    Each round may take up to ``max_steps`` Levenberg–Marquardt steps; no new round starts
+    once the rounds together have taken ``max_steps`` (if the sources still move then, the
+    result is ``nonlinear_max_steps_reached``).
+
     Returns ``(z, result, steps, gram, ssr, unsettled, ssr0)``: the solution, the optimistix
-    result, the Levenberg–Marquardt steps of all rounds (at most ``max_steps``, else the
-    result says so), the Gram matrix and the sum of squared prediction errors at ``z``, whether
-    the sources still moved after :data:`MAX_ROUNDS` rounds within the step budget (then
-    the caller finishes with the full solve), and the sum of squares at ``z0``."""
+    result, the steps of all rounds, the Gram matrix and the sum of squared prediction errors
+    at ``z``, whether the sources still moved after :data:`MAX_ROUNDS` rounds within the step
+    budget (then the caller finishes with the full solve), and the sum of squares at ``z0``."""
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.max_norm,
                                      linear_solver=lx.Normal(lx.Cholesky()))
     gram0, codes0, ssr0 = statistics(z0, par, recordings)
