@@ -1,6 +1,6 @@
 """Peer implementations of the Monte Carlo study for benchmarks/monte_carlo.py: the same
 algorithm as hbjax.monte_carlo with estimator="giri" (simulate the three experiments with
-white equation error, then hbjax._giri.estimate_giri's steps, diagnostics and result codes
+white equation error, then hbjax._identify.giri.estimate_giri's steps, diagnostics and result codes
 included), in plain NumPy (a loop over realisations) and in Numba (prange over realisations).
 """
 
@@ -98,7 +98,7 @@ def _np_vander(levels, values, h_m):
 
 
 def numpy_estimate(s, y1, y2, y3):
-    """The steps of hbjax._giri.estimate_giri in NumPy; returns (theta, code)."""
+    """The steps of hbjax._identify.giri.estimate_giri in NumPy; returns (theta, code)."""
     n, m, h_m = s["n"], s["m"], s["h_m"]
     half = len(y1) // 2
     a0 = _np_ls(n, y2, s["u2"], _np_offset(y1, half))[0]

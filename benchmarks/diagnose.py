@@ -66,7 +66,7 @@ def jacobian_vs_jacfwd():
     import jax.numpy as jnp
 
     import hbjax
-    from hbjax._effects_kernel import fast_jacobian, fast_prediction_error
+    from hbjax._diagnose.kernel import fast_jacobian, fast_prediction_error
 
     rec = hbjax.concealed_recording("coulomb_friction", system=0, n=N, key=jax.random.PRNGKey(3))
     lay, theta, ints, consts = rec.true_model.parts()
@@ -91,7 +91,7 @@ def jacobian_vs_jacfwd():
 def residual_tests_vs_scipy():
     from scipy import stats
 
-    from hbjax._residual_tests import whiteness
+    from hbjax._diagnose.residual_tests import whiteness
 
     e = np.random.default_rng(0).standard_normal(N)
     w = whiteness(e)

@@ -4,7 +4,7 @@ The task: R realisations of the full three-experiment closed-form identification
 equation noise for v1, v2, v3; simulate the HB-Hammerstein system; estimate offset, least
 squares (26) with its transient search, Vandermonde solves (45)-(46), diagnostics and result
 codes) with T samples per experiment, on the default system. All three sides run the same
-algorithm (benchmarks/_mc_peers.py mirrors hbjax._giri.estimate_giri step by step); each draws
+algorithm (benchmarks/_mc_peers.py mirrors hbjax._identify.giri.estimate_giri step by step); each draws
 its own noise with its native generator. Then the peak memory of a 10 000 x 100 000 study.
 
 Run: ``.venv/bin/python benchmarks/monte_carlo.py`` (writes its section of RESULTS.md).
@@ -89,7 +89,7 @@ def agreement(model, design, s, T, n_check=3):
     """Same noise records into the three implementations: max |difference| of estimates."""
     import jax.numpy as jnp
 
-    from hbjax._giri import estimate_giri
+    from hbjax._identify.giri import estimate_giri
 
     rng = np.random.default_rng(7)
     worst_nb, worst_np = 0.0, 0.0
@@ -219,7 +219,7 @@ Targets: >= 50x NumPy (measured {np_full / jax_t:.0f}x), >= Numba parallel (meas
 What each side does: hbjax draws threefry float32 normals (used in float64) per realisation,
 simulates the three experiments with the jitted `lax.scan` (vmapped: realisations on the
 minor axis of time-major arrays; the play operator does not depend on the noise, so vmap
-keeps it unbatched) and runs `hbjax._giri.estimate_giri` vmapped, in chunks sharded over
+keeps it unbatched) and runs `hbjax._identify.giri.estimate_giri` vmapped, in chunks sharded over
 the devices. Numba: per realisation (prange), `np.random.standard_normal` (thread-local,
 seeded per realisation), one loop simulating play + ARX, the normal equations accumulated
 in one pass (no regressor matrix), LAPACK for the 4x4/3x3 solves. NumPy: per realisation,

@@ -25,9 +25,9 @@ import numba  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 import hbjax  # noqa: E402
-from hbjax._giri import estimate_giri  # noqa: E402
-from hbjax._refine import refine_batch, refine_traceable  # noqa: E402
-from hbjax._separable import separable_traceable  # noqa: E402
+from hbjax._identify.giri import estimate_giri  # noqa: E402
+from hbjax._identify.refine import refine_batch, refine_traceable  # noqa: E402
+from hbjax._identify.separable import separable_traceable  # noqa: E402
 from _machine import describe, write_section  # noqa: E402
 
 T, SIGMA, H_M = 10_000, 0.2, 4.0

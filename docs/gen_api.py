@@ -67,7 +67,7 @@ def signature(obj) -> str:
     text = str(sig)
     # Default values that print as memory addresses would make the file change every run.
     text = re.sub(r" at 0x[0-9a-f]+", "", text)
-    # Public spellings of types: hbjax._model.Hammerstein -> hbjax.Hammerstein, etc.
+    # Public spellings of types: hbjax._core.model.Hammerstein -> hbjax.Hammerstein, etc.
     public = importlib.import_module("hbjax")
     text = re.sub(
         r"\bhbjax\._[a-z_]+\.([A-Z]\w*)",

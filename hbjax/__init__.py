@@ -1,38 +1,38 @@
 """hbjax: identification of Hammerstein systems with a hysteresis-backlash input
 nonlinearity (Giri et al.), in JAX."""
 
-from . import _config  # noqa: F401  (enables float64 before any array is made)
-from ._arx import ARX as ARX
-from ._backlash import Backlash as Backlash
-from ._defaults import default_design as default_design, default_system as default_system
-from ._giri import GiriResult as GiriResult, identify_giri as identify_giri, normalise as normalise
-from ._model import AbstractModel as AbstractModel, Hammerstein as Hammerstein
-from ._params import (
+from ._core import precision as _config  # noqa: F401  (enables float64 before any array is made)
+from ._core.arx import ARX as ARX
+from ._core.backlash import Backlash as Backlash
+from ._core.defaults import default_design as default_design, default_system as default_system
+from ._identify.giri import GiriResult as GiriResult, identify_giri as identify_giri, normalise as normalise
+from ._core.model import AbstractModel as AbstractModel, Hammerstein as Hammerstein
+from ._core.params import (
     flatten_params as flatten_params,
     param_names as param_names,
     unflatten_params as unflatten_params,
 )
-from ._signals import GiriDesign as GiriDesign
-from ._simulate import play as play, predict as predict, simulate as simulate
+from ._core.signals import GiriDesign as GiriDesign
+from ._core.simulate import play as play, predict as predict, simulate as simulate
 
 # --- refinement (issue 3) ---
-from ._crlb import CRLBResult as CRLBResult, crlb as crlb
-from ._fit import FitResult as FitResult, fit as fit, normalise_static_gain as normalise_static_gain
-from ._refine import RefineResult as RefineResult, RefinementError as RefinementError, refine as refine
-from ._separable import separable_ls as separable_ls
+from ._identify.crlb import CRLBResult as CRLBResult, crlb as crlb
+from ._identify.fit import FitResult as FitResult, fit as fit, normalise_static_gain as normalise_static_gain
+from ._identify.refine import RefineResult as RefineResult, RefinementError as RefinementError, refine as refine
+from ._identify.separable import separable_ls as separable_ls
 # --- monte carlo (issue 4) ---
-from ._monte_carlo import Study as Study, monte_carlo as monte_carlo
+from ._montecarlo.run import Study as Study, monte_carlo as monte_carlo
 # --- diagnosis (issue 5) ---
-from ._concealed import ConcealedRecording as ConcealedRecording, concealed_recording as concealed_recording
-from ._diagnose import Diagnosis as Diagnosis, Finding as Finding, diagnose as diagnose
-from ._effects import EFFECTS as EFFECTS
+from ._diagnose.concealed import ConcealedRecording as ConcealedRecording, concealed_recording as concealed_recording
+from ._diagnose.diagnose import Diagnosis as Diagnosis, Finding as Finding, diagnose as diagnose
+from ._diagnose.effects import EFFECTS as EFFECTS
 # --- io, datasets, cli (issue 6) ---
 from . import datasets as datasets
-from ._io import (
+from ._io.recording import (
     Recording as Recording,
     load_recording as load_recording,
     save_recording as save_recording,
 )
-from ._modelfile import load_model as load_model, save_model as save_model
+from ._io.modelfile import load_model as load_model, save_model as save_model
 
 __version__ = "0.1.0"

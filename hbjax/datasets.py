@@ -16,7 +16,7 @@ import json
 
 import numpy as np
 
-from ._io import Recording
+from ._io.recording import Recording
 
 __all__ = ["brfd", "brfd_names", "cascaded_tanks"]
 

@@ -4,13 +4,13 @@ Re-exports the figures of each area: core figures (backlash loops, the paper's s
 measured vs simulated output), Monte Carlo study plots and diagnosis plots.
 """
 
-from ._plot_core import (
+from ._plot.core import (
     plot_backlash as plot_backlash,
     plot_output as plot_output,
     plot_staircase as plot_staircase,
 )
 
 # --- monte carlo plots (issue 4) ---
-from ._plot_mc import plot_monte_carlo as plot_monte_carlo
+from ._plot.monte_carlo import plot_monte_carlo as plot_monte_carlo
 # --- diagnosis plots (issue 5) ---
-from ._plot_diagnosis import plot_diagnosis as plot_diagnosis
+from ._plot.diagnosis import plot_diagnosis as plot_diagnosis

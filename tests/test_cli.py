@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax._cli import build_parser, main
+from hbjax._cli.parser import build_parser, main
 
 ENV = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONWARNINGS": "ignore"}
 
@@ -156,7 +156,7 @@ def test_montecarlo_config_errors(tmp_path):
 
 @pytest.mark.slow
 def test_diagnose_reports_and_saves_the_extended_model(tmp_path, system):
-    from hbjax._effects import OutputSaturation
+    from hbjax._diagnose.effects import OutputSaturation
 
     rng = np.random.default_rng(0)
     v = np.repeat(rng.uniform(-6, 6, 100), 8)

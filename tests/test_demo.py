@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax._demo import run_demo
+from hbjax._cli.demo import run_demo
 
 
 def test_demo_reports_and_writes_figures(tmp_path, capsys):

@@ -23,8 +23,8 @@ import hashlib, json
 import jax, jax.numpy as jnp, numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 import hbjax
-from hbjax._giri import estimate_giri
-from hbjax._refine import refine_traceable
+from hbjax._identify.giri import estimate_giri
+from hbjax._identify.refine import refine_traceable
 
 model, design = hbjax.default_system(), hbjax.default_design()
 T, B = 600, 8

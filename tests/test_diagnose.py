@@ -11,7 +11,7 @@ import pytest
 
 import hbjax
 from hbjax import _effects as fx
-from hbjax._effects_kernel import fast_jacobian, fast_prediction_error, prediction_error
+from hbjax._diagnose.kernel import fast_jacobian, fast_prediction_error, prediction_error
 
 
 def _reference(c1, c2, a, b, v, xi, *, delay=0, u_clip=(-np.inf, np.inf), y_map=None):
@@ -174,7 +174,7 @@ N = 1500
 
 
 def _case(effect, system, j):
-    inputs = hbjax._concealed.INPUTS[(j + system) % 3]
+    inputs = hbjax._diagnose.concealed.INPUTS[(j + system) % 3]
     return hbjax.concealed_recording(effect, system=system, inputs=inputs, n=N,
                                      noise=NOISE[system], key=jax.random.PRNGKey(100 * system + j))
 
@@ -256,19 +256,19 @@ def test_reports_are_json_and_models_run(study):
 
 def test_plateau_signature():
     est, val = hbjax.datasets.cascaded_tanks()
-    sig = hbjax._residual_tests.plateaus(est.y, +1)
+    sig = hbjax._diagnose.residual_tests.plateaus(est.y, +1)
     assert sig["level"] == 10.0 and sig["windows"] == [[150, 177], [892, 912]]
-    assert hbjax._residual_tests.plateaus(val.y, +1)["windows"] == [[152, 165], [722, 746]]
-    assert hbjax._residual_tests.plateaus(est.y, -1) is None
+    assert hbjax._diagnose.residual_tests.plateaus(val.y, +1)["windows"] == [[152, 165], [722, 746]]
+    assert hbjax._diagnose.residual_tests.plateaus(est.y, -1) is None
     rng = np.random.default_rng(0)
     smooth = np.sin(np.arange(2000) / 50) + 0.01 * rng.standard_normal(2000)
-    assert hbjax._residual_tests.plateaus(smooth, +1) is None
-    assert hbjax._residual_tests.plateaus(np.minimum(smooth, 0.8), +1)["level"] == 0.8
+    assert hbjax._diagnose.residual_tests.plateaus(smooth, +1) is None
+    assert hbjax._diagnose.residual_tests.plateaus(np.minimum(smooth, 0.8), +1)["level"] == 0.8
 
 
 @pytest.fixture(scope="module")
 def tanks():
-    from hbjax._baseline import identify_nominal
+    from hbjax._diagnose.nominal import identify_nominal
 
     est, val = hbjax.datasets.cascaded_tanks()
     start = identify_nominal(est.v, est.y, na=2, nb=2, m=3)
@@ -299,7 +299,7 @@ def test_cascaded_tanks_sensor_clip_found_and_located(tanks):
     y_new = np.asarray(hbjax.simulate(f.model, d.v))
     np.testing.assert_allclose(y_new, np.minimum(y_nom, f.parameters["upper"]), atol=1e-9)
     n = len(est.y)
-    fit = hbjax._residual_tests.fit_percent
+    fit = hbjax._diagnose.residual_tests.fit_percent
     assert fit(val.y, y_new[n:]) == pytest.approx(f.fit_after)
     assert fit(val.y, y_new[n:]) > fit(val.y, y_nom[n:])
     json.dumps(d.to_dict())

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax._giri import estimate_giri
+from hbjax._identify.giri import estimate_giri
 
 
 def _experiments(model, design, N, noise_std, key):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax._modelfile import ModelFileError, model_from_json, model_to_json
+from hbjax._io.modelfile import ModelFileError, model_from_json, model_to_json
 
 
 def write(tmp_path, name, text):
@@ -251,7 +251,7 @@ class SaturatedHammerstein(hbjax.AbstractModel):
 
     def simulate_trajectory(self, v, noise, u0):
         y = self.core.simulate_trajectory(v, noise, u0)
-        return jnp.clip(hbjax._model.lagged(y, self.delay), -self.limit, self.limit) + self.offset
+        return jnp.clip(hbjax._core.model.lagged(y, self.delay), -self.limit, self.limit) + self.offset
 
     def predict_trajectory(self, v, y, u0):
         return self.core.predict_trajectory(v, y, u0) + self.offset

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax._giri import SINGULAR_LS, estimate_giri
+from hbjax._identify.giri import SINGULAR_LS, estimate_giri
 
 
 KEY = jax.random.key(0)
@@ -67,7 +67,7 @@ def test_statistics_from_estimates(system, design, small_study):
 
 
 def test_slope_fit_recovers_known_rate():
-    from hbjax._study import _slope_fit
+    from hbjax._montecarlo.study import _slope_fit
 
     lengths = np.array([100, 1000, 10000])
     rmse = 3.0 * lengths[:, None] ** np.array([-0.5, -0.25])[None, :]
@@ -141,7 +141,7 @@ def test_failed_realisations_are_counted_and_excluded(system, design):
     assert np.all(np.isfinite(s.rmse))
     ok = ~failed[0]
     np.testing.assert_allclose(s.mean[0], s.estimates[0, ok].mean(axis=0), rtol=1e-13)
-    msg = hbjax._giri.RESULT_MESSAGES[SINGULAR_LS]
+    msg = hbjax._identify.giri.RESULT_MESSAGES[SINGULAR_LS]
     np.testing.assert_array_equal(s.failure_counts()[msg], failed.sum(axis=1))
     assert "failed" in s.table(file=open(os.devnull, "w"))
 
@@ -153,7 +153,7 @@ def test_nonfinite_estimate_with_success_code_is_flagged(system, design):
         return type("R", (), {"model": model, "result": jnp.asarray(0)})()
 
     s = _study(system, design, estimator=nan_model, realisations=2)
-    np.testing.assert_array_equal(s.codes, hbjax._giri.NONFINITE)
+    np.testing.assert_array_equal(s.codes, hbjax._identify.giri.NONFINITE)
     np.testing.assert_array_equal(s.n_valid, [0])
     assert np.all(np.isnan(s.rmse)) and np.all(np.isnan(s.slope))
 

@@ -7,8 +7,8 @@ import pytest
 
 import hbjax
 from hbjax import _criteria as C
-from hbjax._model import play_trajectory
-from hbjax._refine import RESULTS, refine_batch, refine_traceable
+from hbjax._core.model import play_trajectory
+from hbjax._identify.refine import RESULTS, refine_batch, refine_traceable
 
 from conftest import reference_simulate
 
@@ -307,7 +307,7 @@ def test_non_convergence_is_reported(paper):
 
 def _free_start(recs, start, h_m=4.0):
     import equinox as eqx
-    from hbjax._refine import gauge_transform, make_parametrisation
+    from hbjax._identify.refine import gauge_transform, make_parametrisation
 
     par = make_parametrisation(start, recs, h_m)
     model, _ = gauge_transform(start, par)
@@ -444,7 +444,7 @@ def test_refined_estimator_reaches_the_cramer_rao_bound():
     """Paper's three experiments, n = 2, m = 3, equation-error noise, N = 10^4 per
     experiment, 500 realisations: var(refined) / CRLB <= 1.2 and |bias| <= 0.1 std for
     every normalised parameter; the closed form sits well above the bound."""
-    from hbjax._giri import estimate_giri
+    from hbjax._identify.giri import estimate_giri
 
     system, design = hbjax.default_system(), hbjax.default_design()
     n, reps, chunk, sigma = 10_000, 500, 100, 0.2

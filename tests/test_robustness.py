@@ -32,8 +32,8 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax._cli import main as cli_main
-from hbjax._modelfile import ModelFileError
+from hbjax._cli.parser import main as cli_main
+from hbjax._io.modelfile import ModelFileError
 
 # ----------------------------------------------------------------------------- fixtures
 # Module-level, built lazily: table entries are lambdas ``call(tmp)`` with ``tmp`` a fresh
@@ -619,7 +619,7 @@ def test_check_model_accepts_increasing_and_decreasing_backlash():
 
 
 def test_monte_carlo_reports_singular_realisations_and_finishes_the_rest():
-    from hbjax._giri import SINGULAR_LS, estimate_giri
+    from hbjax._identify.giri import SINGULAR_LS, estimate_giri
 
     def sometimes_singular(design, y1, y2, y3):
         # y1(0) = xi(0) (v1(0) = 0, zero initial conditions): where it is positive the v2
@@ -643,7 +643,7 @@ def test_monte_carlo_reports_singular_realisations_and_finishes_the_rest():
 
 
 def test_refine_and_fit_with_throw_false_return_a_failure_code():
-    from hbjax._refine import RESULTS
+    from hbjax._identify.refine import RESULTS
 
     with pytest.raises(hbjax.RefinementError, match="did not converge: .*pass throw=False"):
         hbjax.refine(MN, REC, h_m=H_M, max_steps=1)
@@ -661,7 +661,7 @@ def test_a_failed_refinement_in_a_batch_leaves_the_others_intact():
     # vmapped refinement (as in Monte Carlo 'refined'): one start has mu = 0, so the
     # paper's normalisation is undefined; it reports a code, the others converge as alone
     # (to the solver's tolerance: converged members of a vmapped loop may take extra steps).
-    from hbjax._refine import RESULTS, refine_traceable
+    from hbjax._identify.refine import RESULTS, refine_traceable
 
     quarter = hbjax.Backlash([0.0, 0.0, 1.0 / 16.0], [1.0, 0.0, 0.0])  # mu(4) = 1 - 16/16 = 0
     starts = [MN, hbjax.Hammerstein(quarter, MN.arx), hbjax.normalise(model_with(a=[-1.1, 0.4]), H_M)]

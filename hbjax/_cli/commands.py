@@ -1,4 +1,4 @@
-"""What each ``hbjax`` command does (the parser is in :mod:`hbjax._cli`).
+"""What each ``hbjax`` command does (the parser is in :mod:`hbjax._cli.parser`).
 
 Each command imports what it needs (estimators, matplotlib) when it runs, so a command
 never pays for another's imports and the numerical core never imports matplotlib.
@@ -6,7 +6,7 @@ never pays for another's imports and the numerical core never imports matplotlib
 
 
 def cmd_demo(args) -> int:
-    from ._demo import run_demo
+    from .demo import run_demo
 
     run_demo(args.out, force=args.force, n_samples=args.samples, seed=args.seed)
     return 0
@@ -24,14 +24,14 @@ def _column_key(key):
 
 
 def _read_recording(path, args):
-    from ._io import load_recording
+    from .._io.recording import load_recording
 
     return load_recording(path, input=_column_key(args.input), output=_column_key(args.output))
 
 
 def _read_column(path, key, role):
     """One numeric column of a CSV file; default: the only column, or ``role``'s default."""
-    from ._io import read_csv_table
+    from .._io.recording import read_csv_table
 
     table = read_csv_table(path)
     if key is None:
@@ -40,7 +40,7 @@ def _read_column(path, key, role):
 
 
 def _parse_design(text: str):
-    from ._signals import GiriDesign
+    from .._core.signals import GiriDesign
 
     parts = {}
     for item in text.split(","):
@@ -63,7 +63,7 @@ def _describe_model(model, indent: str = "  ") -> str:
     import jax
     import numpy as np
 
-    from ._model import Hammerstein
+    from .._core.model import Hammerstein
 
     def fmt(x):
         return np.array2string(np.asarray(x), precision=6, separator=", ")
@@ -91,7 +91,7 @@ def _describe_model(model, indent: str = "  ") -> str:
 
 
 def cmd_signals(args) -> int:
-    from ._io import atomic_write, format_float
+    from .._io.recording import atomic_write, format_float
 
     design = _parse_design(args.design)
     signals = (
@@ -111,9 +111,9 @@ def cmd_simulate(args) -> int:
     import jax
     import jax.numpy as jnp
 
-    from ._io import Recording, save_recording
-    from ._modelfile import load_model
-    from ._simulate import simulate
+    from .._io.recording import Recording, save_recording
+    from .._io.modelfile import load_model
+    from .._core.simulate import simulate
 
     model = load_model(args.model)
     v = _read_column(args.input, args.column, "input")
@@ -129,8 +129,8 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_identify_giri(args) -> int:
-    from ._giri import identify_giri
-    from ._modelfile import save_model
+    from .._identify.giri import identify_giri
+    from .._io.modelfile import save_model
 
     design = _parse_design(args.design)
     ys = [_read_column(path, args.output, "output") for path in args.records]
@@ -177,10 +177,10 @@ def _read_json(path, what):
 def _study_config(path):
     import pathlib
 
-    from ._defaults import default_design, default_system
-    from ._model import Hammerstein
-    from ._modelfile import load_model
-    from ._signals import GiriDesign
+    from .._core.defaults import default_design, default_system
+    from .._core.model import Hammerstein
+    from .._io.modelfile import load_model
+    from .._core.signals import GiriDesign
 
     config = _read_json(path, "config file")
     if not isinstance(config, dict):
@@ -243,10 +243,10 @@ def cmd_montecarlo(args) -> int:
 
     import jax
 
-    from . import __version__
-    from ._io import atomic_write
-    from ._modelfile import pretty_json
-    from ._monte_carlo import monte_carlo
+    from .. import __version__
+    from .._io.recording import atomic_write
+    from .._io.modelfile import pretty_json
+    from .._montecarlo.run import monte_carlo
 
     for out in (args.out, args.plot):
         if out is not None and os.path.abspath(out) == os.path.abspath(args.config):
@@ -285,7 +285,7 @@ def _write_figure(path, fig, *, overwrite):
 
     buf = io.BytesIO()
     fig.savefig(buf, format=os.path.splitext(path)[1].lstrip(".") or "png", dpi=120)
-    from ._io import atomic_write
+    from .._io.recording import atomic_write
 
     atomic_write(path, buf.getvalue(), overwrite=overwrite)
     print(f"wrote {path}")
@@ -294,11 +294,11 @@ def _write_figure(path, fig, *, overwrite):
 def cmd_diagnose(args) -> int:
     import os
 
-    from . import __version__
-    from ._diagnose import diagnose
-    from ._io import atomic_write
-    from ._model import Hammerstein
-    from ._modelfile import load_model, pretty_json, save_model
+    from .. import __version__
+    from .._diagnose.diagnose import diagnose
+    from .._io.recording import atomic_write
+    from .._core.model import Hammerstein
+    from .._io.modelfile import load_model, pretty_json, save_model
 
     for out in (args.json, args.plot, args.save_model):  # refuse before the long part
         if out is not None and os.path.exists(out) and not args.force:
@@ -332,7 +332,7 @@ def cmd_diagnose(args) -> int:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from ._plot_diagnosis import plot_diagnosis
+        from .._plot.diagnosis import plot_diagnosis
 
         fig, axes = plt.subplots(3, 1, figsize=(9, 9), layout="constrained")
         plot_diagnosis(report, axes=axes)
@@ -346,8 +346,8 @@ def cmd_identify_fit(args) -> int:
     import jax
     import numpy as np
 
-    from ._fit import fit
-    from ._modelfile import save_model
+    from .._identify.fit import fit
+    from .._io.modelfile import save_model
 
     if os.path.exists(args.out) and not args.force:  # refuse before the long part
         raise FileExistsError(f"{args.out!r} already exists; pass --force to replace it.")
@@ -371,7 +371,7 @@ def cmd_identify_fit(args) -> int:
 
 
 def cmd_show(args) -> int:
-    from ._modelfile import load_model
+    from .._io.modelfile import load_model
 
     model = load_model(args.model)
     print(f"{args.model}: {type(model).__name__}")

@@ -8,11 +8,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from ._defaults import default_design, default_system
-from ._giri import identify_giri, normalise
-from ._params import flatten_params, param_names
-from ._refine import refine
-from ._simulate import simulate
+from .._core.defaults import default_design, default_system
+from .._identify.giri import identify_giri, normalise
+from .._core.params import flatten_params, param_names
+from .._identify.refine import refine
+from .._core.simulate import simulate
 
 
 def _table(names, truth, closed, refined, std) -> str:
@@ -39,7 +39,7 @@ def run_demo(out="demo_output", *, force=False, n_samples=10_000, noise_std=0.5,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ._plot_core import plot_backlash, plot_output, plot_staircase
+    from .._plot.core import plot_backlash, plot_output, plot_staircase
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ files are never overwritten unless ``--force`` is given, and are written atomica
 import argparse
 import sys
 
-from . import _cli_commands as commands
+from . import commands as commands
 
 _EPILOG_RECORDINGS = (
     "recording files: CSV with a header row; by default the first column is the input v and "

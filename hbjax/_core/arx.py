@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import as_float_array, is_traced
+from .._misc import as_float_array, is_traced
 
 
 class ARX(eqx.Module):

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import as_float_array, is_traced
+from .._misc import as_float_array, is_traced
 
 
 def polyval_ascending(c: Float[Array, " m"], v):

@@ -1,9 +1,9 @@
 """The embedded default system used by the demo, the notebooks and the tests."""
 
-from ._arx import ARX
-from ._backlash import Backlash
-from ._model import Hammerstein
-from ._signals import GiriDesign
+from .arx import ARX
+from .backlash import Backlash
+from .model import Hammerstein
+from .signals import GiriDesign
 
 
 def default_system() -> Hammerstein:

@@ -7,8 +7,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._arx import ARX
-from ._backlash import Backlash
+from .arx import ARX
+from .backlash import Backlash
 
 
 class AbstractModel(eqx.Module):

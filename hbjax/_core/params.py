@@ -3,10 +3,10 @@
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import as_float_array, check_finite, is_traced
-from ._model import Hammerstein
+from .arx import ARX
+from .backlash import Backlash
+from .._misc import as_float_array, check_finite, is_traced
+from .model import Hammerstein
 
 
 def _check_model(model, name):

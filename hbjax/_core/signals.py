@@ -3,7 +3,7 @@
 import equinox as eqx
 import numpy as np
 
-from ._checks import positive_float, positive_int
+from .._misc import positive_float, positive_int
 
 
 class GiriDesign(eqx.Module):
@@ -51,7 +51,7 @@ class GiriDesign(eqx.Module):
         estimator uses: ``v = +h_m`` puts the output on ``P1`` and ``v = -h_m`` on ``P2``
         (``mu = P2(-h_m) - P1(h_m)`` has the sign that crosses the gap, section 4.1).
         """
-        from ._model import Hammerstein
+        from .model import Hammerstein
 
         if not isinstance(model, Hammerstein):
             raise TypeError(f"`{name}` must be an hbjax.Hammerstein, got {type(model).__name__}.")

@@ -6,10 +6,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import as_float_array, check_finite, guard_finite, is_traced, same_length, signal
-from ._model import AbstractModel, Hammerstein, play_trajectory
+from .arx import ARX
+from .backlash import Backlash
+from .._misc import as_float_array, check_finite, guard_finite, is_traced, same_length, signal
+from .model import AbstractModel, Hammerstein, play_trajectory
 
 
 def _check_model(model, cls=AbstractModel, name="model"):

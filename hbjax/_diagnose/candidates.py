@@ -2,7 +2,7 @@
 free parameters each effect adds, and turning a fitted vector back into a physical model.
 
 Every effect is expressed in the extended parameter vector of
-:mod:`hbjax._effects_kernel`; a candidate lists its possible starts (one is chosen by a
+:mod:`hbjax._diagnose.kernel`; a candidate lists its possible starts (one is chosen by a
 batched evaluation of the criterion) and the slots it frees, with a scale per slot so that
 Levenberg-Marquardt sees well-conditioned columns.
 """
@@ -15,12 +15,12 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from . import _effects as fx
-from ._arx import ARX
-from ._backlash import Backlash
-from ._effects_kernel import MAX_DELAY, Layout
-from ._model import Hammerstein
-from ._residual_tests import periodogram, spectral_peaks
+from . import effects as fx
+from .._core.arx import ARX
+from .._core.backlash import Backlash
+from .kernel import MAX_DELAY, Layout
+from .._core.model import Hammerstein
+from .residual_tests import periodogram, spectral_peaks
 
 BASE_SLOTS = ("a", "b", "c1", "c2")
 

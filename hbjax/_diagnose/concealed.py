@@ -14,12 +14,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _effects as fx
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import positive_int
-from ._model import Hammerstein, play_trajectory
-from ._simulate import simulate
+from . import effects as fx
+from .._core.arx import ARX
+from .._core.backlash import Backlash
+from .._misc import positive_int
+from .._core.model import Hammerstein, play_trajectory
+from .._core.simulate import simulate
 
 INPUTS = ("steps", "smooth", "sines")
 

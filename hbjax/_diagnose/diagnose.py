@@ -24,15 +24,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _candidates as cands
-from . import _effects as fx
-from . import _residual_tests as rt
-from ._checks import as_float_array, check_finite, same_length
-from ._diagnose_fit import evaluate_batch, fit_batch, jacobian, sse_batch
-from ._effects import EFFECTS, base_theta
-from ._effects_kernel import MAX_DELAY
-from ._explain import describe
-from ._model import Hammerstein
+from . import candidates as cands
+from . import effects as fx
+from . import residual_tests as rt
+from .._misc import as_float_array, check_finite, same_length
+from .solve import evaluate_batch, fit_batch, jacobian, sse_batch
+from .effects import EFFECTS, base_theta
+from .kernel import MAX_DELAY
+from .explain import describe
+from .._core.model import Hammerstein
 
 #: BIC margin a candidate must win by ("very strong" evidence on the Kass-Raftery scale)
 BIC_MARGIN = 10.0

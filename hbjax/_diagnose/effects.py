@@ -5,7 +5,7 @@ mechanism the paper's model (eq. (10)) leaves out. They are plain final ``eqx.Mo
 (array leaves for fitted values, static ints/floats for structure) subclassing
 :class:`hbjax.AbstractModel`, so :func:`hbjax.simulate` and :func:`hbjax.predict` run them.
 All of them evaluate through the single extended simulator of
-:mod:`hbjax._effects_kernel` with the other extensions at their neutral values.
+:mod:`hbjax._diagnose.kernel` with the other extensions at their neutral values.
 
 The one-step predictor of every extension is ``y_hat = y - D A (y - y_sim)``: for the
 nominal model this is exactly the ARX predictor of eq. (10).
@@ -17,8 +17,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._effects_kernel import Layout, simulate_full, whiten
-from ._model import AbstractModel, Hammerstein
+from .kernel import Layout, simulate_full, whiten
+from .._core.model import AbstractModel, Hammerstein
 
 NO_CHANGE = 2**30  # change time "after the end of any record"
 
@@ -193,8 +193,8 @@ class ParameterChange(AbstractModel):
 
     def after(self) -> Hammerstein:
         """The model in force after the change."""
-        from ._arx import ARX
-        from ._backlash import Backlash
+        from .._core.arx import ARX
+        from .._core.backlash import Backlash
 
         b = self.base
         return Hammerstein(Backlash(b.backlash.c1 + self.dc1, b.backlash.c2 + self.dc2),

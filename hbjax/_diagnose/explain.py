@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._residual_tests import plateaus, windows
+from .residual_tests import plateaus, windows
 
 
 def _f(x, digits=4):
@@ -36,7 +36,7 @@ def _parameter_mismatch(model, ctx, info):
                                                    model.backlash.c1, model.backlash.c2)])
     rel = np.abs(new - nom) / np.maximum(np.abs(nom), 1e-3 * (np.max(np.abs(nom)) or 1.0))
     k = int(np.argmax(rel))
-    from ._params import param_names
+    from .._core.params import param_names
 
     name = param_names(model)[k]
     return {
@@ -89,7 +89,7 @@ def _output_saturation(model, ctx, info):
 
 
 def _input_saturation(model, ctx, info):
-    from ._model import play_trajectory
+    from .._core.model import play_trajectory
 
     u = np.asarray(play_trajectory(model.base.backlash, np.asarray(info["v"]), 0.0))
     lo, hi, mask, frac, sides = _saturation_report(model, info, u, "input")

@@ -3,7 +3,7 @@
 Every effect of the diagnosis library is a term of a single extended model whose neutral
 values (zero coefficients, infinite clip levels, zero delay, change time past the end)
 give back the nominal model of paper eq. (10) exactly. The effect classes of
-:mod:`hbjax._effects` and the diagnosis fits all call :func:`simulate_full` and
+:mod:`hbjax._diagnose.effects` and the diagnosis fits all call :func:`simulate_full` and
 :func:`whiten`, so one compiled function serves every candidate of a base structure
 ``(na, nb, m)``; which parameters a candidate may move is data (a selection matrix),
 not structure.
@@ -30,7 +30,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._backlash import polyval_ascending, power_columns
+from .._core.backlash import polyval_ascending, power_columns
 
 #: largest extra delay (samples) the extended simulator can represent
 MAX_DELAY = 12

@@ -8,14 +8,14 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from . import _candidates as cands
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import as_float_array, check_finite, same_length
-from ._diagnose_fit import fit_batch
-from ._effects import base_theta
-from ._effects_kernel import MAX_DELAY
-from ._model import Hammerstein
+from . import candidates as cands
+from .._core.arx import ARX
+from .._core.backlash import Backlash
+from .._misc import as_float_array, check_finite, same_length
+from .solve import fit_batch
+from .effects import base_theta
+from .kernel import MAX_DELAY
+from .._core.model import Hammerstein
 
 
 def _static_start(v, y, na, nb, m, gap):

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._effects_kernel import Layout, fast_jacobian, fast_prediction_error, prediction_error
+from .kernel import Layout, fast_jacobian, fast_prediction_error, prediction_error
 
 
 def _masked_eps(lay, theta, ints, consts, v, y, burn, output_static=True,

@@ -12,9 +12,9 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Bool, Float
 
-from ._arx import ARX
-from ._backlash import Backlash, polyval_ascending, power_columns
-from ._model import Hammerstein
+from .._core.arx import ARX
+from .._core.backlash import Backlash, polyval_ascending, power_columns
+from .._core.model import Hammerstein
 
 PREDICTION = "prediction"
 SIMULATION = "simulation"
@@ -181,7 +181,7 @@ def _lag_sum(coef, x):
 
 
 def lagged_rows(x, lag: int):
-    """:func:`hbjax._model.lagged` along the first axis of an array of any rank."""
+    """:func:`hbjax._core.model.lagged` along the first axis of an array of any rank."""
     if lag == 0:
         return x
     return jnp.concatenate([jnp.zeros((lag,) + x.shape[1:], x.dtype), x[:-lag]])

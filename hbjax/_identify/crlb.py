@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import is_traced, positive_float
-from ._config import require_x64
-from ._criteria import PAPER, STATIC_GAIN, Parametrisation, outputs
-from ._model import Hammerstein
-from ._params import flatten_params
-from ._recordings import as_recordings, check_criterion, check_h_m, check_model
+from .._misc import is_traced, positive_float
+from .._core.precision import require_x64
+from .criteria import PAPER, STATIC_GAIN, Parametrisation, outputs
+from .._core.model import Hammerstein
+from .._core.params import flatten_params
+from .recordings import as_recordings, check_criterion, check_h_m, check_model
 
 
 class CRLBResult(eqx.Module):

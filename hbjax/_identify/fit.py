@@ -12,15 +12,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import is_traced, positive_int
-from ._config import require_x64
-from ._criteria import data_scale, play_sources
-from ._model import Hammerstein, lagged
-from ._params import flatten_params
-from ._recordings import as_recordings, check_criterion, total_samples
-from ._refine import RESULTS, RefinementError, refine_traceable
+from .._core.arx import ARX
+from .._core.backlash import Backlash
+from .._misc import is_traced, positive_int
+from .._core.precision import require_x64
+from .criteria import data_scale, play_sources
+from .._core.model import Hammerstein, lagged
+from .._core.params import flatten_params
+from .recordings import as_recordings, check_criterion, total_samples
+from .refine import RESULTS, RefinementError, refine_traceable
 
 
 class FitResult(eqx.Module):
@@ -29,7 +29,7 @@ class FitResult(eqx.Module):
     - `model`: the best local optimum (lowest cost among converged starts), in the
       static-gain normalisation ``B(1) = 1`` with ``P1`` the branch a rising input drives
       the output onto (see :func:`fit`).
-    - `result`, `message`: result code of that start (:class:`hbjax._refine.RESULTS`).
+    - `result`, `message`: result code of that start (:class:`hbjax._identify.refine.RESULTS`).
     - `stats`, `covariance`, `noise_std`, `branches_cross`: as :class:`RefineResult`.
     - `starts_costs`: mean squared residual reached from every start, shape ``(starts,)``
       (``inf`` where a start failed).

@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import as_float_array, check_finite, is_traced
-from ._config import require_x64
-from ._model import Hammerstein, lagged
-from ._signals import GiriDesign
+from .._core.arx import ARX
+from .._core.backlash import Backlash
+from .._misc import as_float_array, check_finite, is_traced
+from .._core.precision import require_x64
+from .._core.model import Hammerstein, lagged
+from .._core.signals import GiriDesign
 
 
 # Result codes (also used by the Monte Carlo study to exclude failed realisations).

@@ -4,9 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import as_float_array, check_finite, is_traced, positive_float
-from ._criteria import CRITERIA
-from ._model import Hammerstein
+from .._misc import as_float_array, check_finite, is_traced, positive_float
+from .criteria import CRITERIA
+from .._core.model import Hammerstein
 
 
 def _is_pair(x) -> bool:

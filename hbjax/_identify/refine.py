@@ -14,18 +14,18 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import is_traced, positive_float, positive_int
-from ._config import require_x64
-from ._criteria import (
+from .._core.arx import ARX
+from .._core.backlash import Backlash
+from .._misc import is_traced, positive_float, positive_int
+from .._core.precision import require_x64
+from .criteria import (
     PAPER, PREDICTION, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1,
     residuals,
 )
-from ._model import Hammerstein
-from ._params import flatten_params
-from ._recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
-from ._sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
+from .._core.model import Hammerstein
+from .._core.params import flatten_params
+from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
+from .sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 
 
 class RESULTS(optx.RESULTS):  # pyright: ignore
@@ -173,7 +173,7 @@ def _solve_full(par, z0, recordings, criterion, **options):
 
 
 def _solve_prediction(par, z0, recordings, **options):
-    """The prediction criterion by sufficient statistics (:mod:`hbjax._sufficient`),
+    """The prediction criterion by sufficient statistics (:mod:`hbjax._identify.sufficient`),
     finished by the full solve where the play operator's sources did not settle (the step
     count then adds both stages)."""
     z, result, steps, gram, ssr, unsettled, ssr0 = solve_by_statistics(par, z0, recordings,
@@ -197,7 +197,7 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     """Traceable core of :func:`refine`: no checks, never raises, result code in `.result`.
 
     With ``statistics=True`` (default) the prediction criterion is solved on the Gram matrix
-    of its bilinear regressors, one pass over the data per round (:mod:`hbjax._sufficient`),
+    of its bilinear regressors, one pass over the data per round (:mod:`hbjax._identify.sufficient`),
     with the full solve as fallback, for orders whose Gram matrix is small
     (``1 + na + 2 m nb <= 32``); ``statistics=False`` always takes a pass per
     Levenberg–Marquardt step (used by multi-start fitting under ``vmap``, where the

@@ -9,15 +9,15 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-from ._arx import ARX
-from ._backlash import Backlash
-from ._checks import is_traced, positive_float, positive_int
-from ._config import require_x64
-from ._criteria import PREDICTION, internal_signal, lagged_rows, lower_is_p1
-from ._model import Hammerstein
-from ._params import flatten_params
-from ._recordings import as_recordings, check_h_m, check_model, total_samples
-from ._refine import (
+from .._core.arx import ARX
+from .._core.backlash import Backlash
+from .._misc import is_traced, positive_float, positive_int
+from .._core.precision import require_x64
+from .criteria import PREDICTION, internal_signal, lagged_rows, lower_is_p1
+from .._core.model import Hammerstein
+from .._core.params import flatten_params
+from .recordings import as_recordings, check_h_m, check_model, total_samples
+from .refine import (
     RESULTS, RefinementError, RefineResult, _check_gauge, _flat_residuals, finish,
     gauge_transform, make_parametrisation, residual_summary, summarise,
 )

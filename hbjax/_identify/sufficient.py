@@ -1,6 +1,6 @@
 """Prediction-error refinement through sufficient statistics.
 
-The play operator's output is a branch value at a past input (:func:`hbjax._criteria._internal`):
+The play operator's output is a branch value at a past input (:func:`hbjax._identify.criteria._internal`):
 ``u(t) = G(t) c`` with ``G(t)`` the row of powers ``x(s)^i`` of the *source* instant ``s`` on
 its branch and ``c = [c1, c2]``. While the sources stay fixed, the one-step prediction error
 of eq. (10) is bilinear in the parameters,
@@ -14,7 +14,7 @@ square). Levenberg–Marquardt then runs on the short residual ``F w`` (``F^T F 
 instead of the ``T``-long one, and a *round* (one pass over the data) recomputes the
 sources and the Gram at its solution. When a round leaves every source as it was, the frozen
 cost and the true cost coincide around the solution: it is a minimum of the true
-prediction-error cost, the one :func:`hbjax._refine.solve` finds with a pass per step.
+prediction-error cost, the one :func:`hbjax._identify.refine.solve` finds with a pass per step.
 """
 
 import jax
@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-from ._criteria import Parametrisation, _internal, lagged_rows
+from .criteria import Parametrisation, _internal, lagged_rows
 
 # Rounds after which sources that still move hand over to the full solve. From a start far
 # from the optimum under an input whose switching instants depend on the band, each round

@@ -6,8 +6,8 @@ with array fields, static ints/floats/None, tuples and nested modules) share one
 
     {"format": "hbjax-model", "format_version": 1, "hbjax_version": "0.1.0",
      "kind": "Hammerstein",
-     "model": {"class": "hbjax._model.Hammerstein",
-               "fields": {"backlash": {"class": "hbjax._backlash.Backlash", "fields": {...}},
+     "model": {"class": "Hammerstein",
+               "fields": {"backlash": {"class": "Backlash", "fields": {...}},
                           "arx": {...}}}}
 
 Arrays are ``{"array": [...], "dtype": "float64", "shape": [2]}`` with every float written as
@@ -15,8 +15,9 @@ the shortest decimal that reads back to the same float64 (Python's ``repr``), so
 ``load_model(save_model(m))`` equals ``m`` bitwise. Non-finite floats are written as
 ``{"float": "nan"}`` / ``"inf"`` / ``"-inf"`` (strict JSON has no NaN).
 
-Loading never imports code named by the file: a class is accepted only if it is an
-``eqx.Module`` defined in an hbjax module, a subclass of :class:`hbjax.AbstractModel` that is
+Loading never imports code named by the file: a class is accepted only if it is a registered
+hbjax type (public names such as ``"Hammerstein"``; files of hbjax 0.1.0 that name module paths
+such as ``"hbjax._model.Hammerstein"`` are read through an alias table), a subclass of :class:`hbjax.AbstractModel` that is
 already defined in this process (e.g. a user's extension), or passed in ``classes=``. Models are
 rebuilt without calling ``__init__`` (fields set directly, as the dataclass stores them) and then
 checked with the classes' ``__check_init__``; any problem raises ``ValueError`` before a model
@@ -26,7 +27,6 @@ is returned, so a corrupted file never gives a half-loaded model.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 import math
 import pathlib
@@ -36,8 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._io import atomic_write
-from ._model import AbstractModel
+from .recording import atomic_write
+from .._core.model import AbstractModel
 
 FORMAT = "hbjax-model"
 FORMAT_VERSION = 1
@@ -48,7 +48,36 @@ class ModelFileError(ValueError):
     """A model file that is not valid JSON, not an hbjax model file, or inconsistent."""
 
 
+def _registered_types() -> dict:
+    """Public, stable type names of the model files: hbjax's own model classes by class name.
+
+    Built from the classes themselves (every :class:`hbjax.AbstractModel` subclass defined in an
+    hbjax module, plus the blocks it nests), so a new model class is registered by existing.
+    """
+    from .._core.arx import ARX
+    from .._core.backlash import Backlash
+
+    types = {"ARX": ARX, "Backlash": Backlash}
+    for cls in _all_subclasses(AbstractModel):
+        if cls.__module__.split(".")[0] == "hbjax" and not getattr(cls, "__abstractmethods__", ()):
+            types[cls.__name__] = cls
+    return types
+
+
+# Type names written by hbjax 0.1.0 (module paths), read as the registered names they meant.
+_LEGACY_MODULES = ("_model", "_backlash", "_arx", "_effects")
+
+
+def _legacy_alias(class_id: str) -> str | None:
+    module, _, name = class_id.rpartition(".")
+    if module in {f"hbjax.{m}" for m in _LEGACY_MODULES}:
+        return name
+    return None
+
+
 def _class_id(cls) -> str:
+    if _registered_types().get(cls.__name__) is cls:
+        return cls.__name__
     return f"{cls.__module__}.{cls.__qualname__}"
 
 
@@ -106,7 +135,7 @@ def _encode_module(module: eqx.Module, where: str) -> dict:
 
 def model_to_json(model: AbstractModel) -> str:
     """The model-file text of ``model`` (see the module docstring for the layout)."""
-    from . import __version__
+    from .. import __version__
 
     if not isinstance(model, AbstractModel):
         raise TypeError(
@@ -177,27 +206,27 @@ def _all_subclasses(cls):
 
 
 def _resolve_class(class_id, extra, where: str):
+    """The class a file names. Nothing is ever imported: only registered hbjax types (or their
+    0.1.0 module-path aliases), classes passed in ``extra`` and :class:`hbjax.AbstractModel`
+    subclasses already defined outside hbjax in this process are accepted."""
     if not isinstance(class_id, str):
         raise ModelFileError(f"`{where}.class` must be a string, got {class_id!r}.")
-    for cls in list(extra) + [AbstractModel] + _all_subclasses(AbstractModel):
+    registered = _registered_types()
+    name = _legacy_alias(class_id) or class_id
+    if name in registered:
+        return registered[name]
+    if name in {c.__name__ for c in [AbstractModel, *_all_subclasses(AbstractModel)]
+                if c.__module__.split(".")[0] == "hbjax"}:
+        raise ModelFileError(f"model type {class_id!r} at `{where}` is abstract: it has no instances.")
+    for cls in list(extra) + [
+        c for c in _all_subclasses(AbstractModel) if c.__module__.split(".")[0] != "hbjax"
+    ]:
         if _class_id(cls) == class_id:
             return cls
-    module_name, _, qualname = class_id.rpartition(".")
-    if module_name == "hbjax" or module_name.startswith("hbjax."):
-        # Only hbjax's own modules are ever imported, and only eqx.Modules accepted from them.
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError:
-            module = None
-        obj = module
-        for part in qualname.split(".") if module is not None else ():
-            obj = getattr(obj, part, None)
-        if isinstance(obj, type) and issubclass(obj, eqx.Module) and _class_id(obj) == class_id:
-            return obj
     raise ModelFileError(
-        f"unknown model class {class_id!r} at `{where}`: not an hbjax class nor an "
-        "hbjax.AbstractModel subclass defined in this process (define or import the extension "
-        "before loading, or pass it in `classes=`)."
+        f"unknown model class {class_id!r} at `{where}`: not a registered hbjax type "
+        f"({', '.join(sorted(registered))}) nor an hbjax.AbstractModel subclass defined in this "
+        "process (define or import the extension before loading, or pass it in `classes=`)."
     )
 
 
@@ -296,8 +325,8 @@ def _decode_module(obj, extra, where):
 
 def _check_arrays(module, cls, where):
     # Backlash and ARX validate in __init__, not __check_init__: repeat their essentials here.
-    from ._arx import ARX
-    from ._backlash import Backlash
+    from .._core.arx import ARX
+    from .._core.backlash import Backlash
 
     if isinstance(module, Backlash):
         c1, c2 = module.c1, module.c2

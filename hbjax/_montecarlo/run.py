@@ -17,13 +17,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from ._checks import is_traced, positive_float, positive_int
-from ._config import require_x64
-from ._giri import NONFINITE, estimate_giri, normalise
-from ._model import Hammerstein
-from ._params import flatten_params, param_names
-from ._signals import GiriDesign
-from ._study import Study
+from .._misc import is_traced, positive_float, positive_int
+from .._core.precision import require_x64
+from .._identify.giri import NONFINITE, estimate_giri, normalise
+from .._core.model import Hammerstein
+from .._core.params import flatten_params, param_names
+from .._core.signals import GiriDesign
+from .study import Study
 
 
 # Default chunk: realisation-samples per device (realisations x record length). On CPU a
@@ -109,7 +109,7 @@ def _refined(design, y1, y2, y3):
     """Closed form (the initial model), then prediction-error refinement on the three
     experiments (issue 3). A failed closed form keeps its own code; a failed refinement
     reports ``REFINE_CODE_OFFSET + `` its optimistix/refinement code."""
-    from ._refine import refine_traceable
+    from .._identify.refine import refine_traceable
 
     first = estimate_giri(design, y1, y2, y3)
     length = y1.shape[0]
@@ -129,10 +129,10 @@ def _resolve_estimator(estimator):
         return _giri, "giri"
     if estimator == "refined":
         try:
-            from ._refine import refine_traceable  # noqa: F401
+            from .._identify.refine import refine_traceable  # noqa: F401
         except ImportError:
             raise NotImplementedError(
-                "estimator='refined' needs hbjax._refine.refine_traceable (prediction-error "
+                "estimator='refined' needs hbjax._identify.refine.refine_traceable (prediction-error "
                 "refinement, issue 3), which this installation does not have; use "
                 "estimator='giri' or pass your own callable (design, y1, y2, y3) -> result "
                 "with `.model` and `.result`."

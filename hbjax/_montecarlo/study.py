@@ -4,7 +4,7 @@ normalised parameter estimates, and the log-log RMSE slope that checks consisten
 import equinox as eqx
 import numpy as np
 
-from ._giri import RESULT_MESSAGES
+from .._identify.giri import RESULT_MESSAGES
 
 
 def _slope_fit(lengths, rmse, mse_var):
@@ -120,7 +120,7 @@ class Study(eqx.Module):
         for code in np.unique(self.codes):
             if code != 0:
                 code = int(code)
-                if code >= 100:  # see hbjax._monte_carlo.REFINE_CODE_OFFSET
+                if code >= 100:  # see hbjax._montecarlo.run.REFINE_CODE_OFFSET
                     msg = f"refinement failed (code {code - 100})"
                 else:
                     msg = RESULT_MESSAGES.get(code, f"code {code}")
@@ -164,6 +164,6 @@ class Study(eqx.Module):
     def plot(self, **kwargs):
         """RMSE vs N on log-log axes with the ``N^-1/2`` reference, and per-parameter error
         histograms (when estimates were kept); see :func:`hbjax.plot.plot_monte_carlo`."""
-        from ._plot_mc import plot_monte_carlo  # matplotlib only when plotting
+        from .._plot.monte_carlo import plot_monte_carlo  # matplotlib only when plotting
 
         return plot_monte_carlo(self, **kwargs)

@@ -3,7 +3,7 @@
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ._simulate import play
+from .._core.simulate import play
 
 
 def _axes(ax):

@@ -3,7 +3,7 @@
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ._simulate import play, simulate
+from .._core.simulate import play, simulate
 
 _REGIME = {
     "output_saturation": "simulated output",
