@@ -18,6 +18,8 @@ import tempfile
 
 import numpy as np
 
+from . import frames as _frames
+
 # Column names of the BRFD JSON layout (banded rotary friction device, see hbjax/data/README.md).
 BRFD_COLUMNS = (
     "time",
@@ -40,8 +42,15 @@ class Recording:
     - `dt`: sampling period in seconds, or ``None`` when unknown.
     - `source`: where the record came from (a path, or ``hbjax.datasets:<name>``).
     - `name`: a short label (file stem or data-set name).
+    - `channels`: other signals recorded at the same instants, ``name -> array`` (e.g. the
+      BRFD's velocity and actuator forces); read-only, empty by default.
+    - `t0`: time of the first sample (seconds, or samples when ``dt`` is ``None``).
+    - `trend`: what :meth:`detrend` removed (``None`` if nothing).
 
     The arrays are finite; a record with NaN or inf is refused at construction.
+    Like MATLAB's ``iddata``: :meth:`from_dataframe` / :meth:`to_dataframe`, :meth:`split`,
+    :meth:`detrend`, :meth:`decimate`, :meth:`plot`; :func:`hbjax.fit`, :func:`hbjax.refine`
+    and :func:`hbjax.diagnose` accept a recording wherever they take ``(v, y)``.
     """
 
     v: np.ndarray
@@ -49,6 +58,9 @@ class Recording:
     dt: float | None = None
     source: str = ""
     name: str = ""
+    channels: dict = dataclasses.field(default_factory=dict)
+    t0: float = 0.0
+    trend: _frames.Trend | None = None
 
     def __post_init__(self):
         v = _finite_column(self.v, "v")
@@ -69,23 +81,65 @@ class Recording:
         object.__setattr__(self, "dt", dt)
         object.__setattr__(self, "source", str(self.source))
         object.__setattr__(self, "name", str(self.name))
+        object.__setattr__(self, "channels", _frames.check_channels(self.channels, v.shape[0]))
+        object.__setattr__(self, "t0", float(self.t0))
 
     def __len__(self) -> int:
         return int(self.v.shape[0])
 
     @property
     def t(self) -> np.ndarray:
-        """Sample times ``k * dt`` (seconds), or sample indices when ``dt`` is ``None``."""
+        """Sample times ``t0 + k * dt`` (seconds), or sample indices ``t0 + k`` when ``dt``
+        is ``None``."""
         k = np.arange(len(self), dtype=np.float64)
-        return k if self.dt is None else k * self.dt
+        return self.t0 + (k if self.dt is None else k * self.dt)
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Recording":
-        """The samples ``start:stop`` as a new record (same ``dt``, ``source`` and ``name``)."""
-        return dataclasses.replace(self, v=self.v[start:stop], y=self.y[start:stop])
+        """The samples ``start:stop`` as a new record (same ``dt``, ``source`` and ``name``;
+        channels sliced alike, times kept)."""
+        return _frames.take(self, slice(start, stop))
+
+    @classmethod
+    def from_dataframe(cls, df, *, input, output, channels=None, dt=None, time=None,
+                       name: str = "") -> "Recording":
+        """A recording from a pandas ``DataFrame``: `input`, `output` name its columns;
+        `channels` the extra ones (default every other numeric column); `dt` comes from
+        the `time` column or a uniform time index when not given."""
+        return _frames.from_dataframe(cls, df, input=input, output=output, channels=channels,
+                                      dt=dt, time=time, name=name)
+
+    def to_dataframe(self):
+        """A pandas ``DataFrame`` with columns ``v``, ``y`` and the channels, indexed by
+        ``t`` (seconds) when ``dt`` is known."""
+        return _frames.to_dataframe(self)
+
+    def split(self, at=0.5) -> tuple["Recording", "Recording"]:
+        """``(estimation, validation)`` parts before and from `at`: a fraction in (0, 1) or
+        a sample index. Both keep ``dt`` and their times."""
+        return _frames.split(self, at)
+
+    def detrend(self, kind: str = "mean") -> "Recording":
+        """Input and output less their mean (``"mean"``) or straight line in time
+        (``"linear"``); the removed trend is kept in ``trend`` (``trend.restore`` adds it back)."""
+        return _frames.detrend(self, kind)
+
+    def decimate(self, k: int) -> "Recording":
+        """Every `k`-th sample after a zero-phase anti-alias low-pass filter (FIR, cut-off
+        at the new Nyquist frequency); ``dt`` becomes ``k dt``."""
+        return _frames.decimate(self, k)
+
+    def plot(self, **kwargs):
+        """Input, output and channels against time (seconds when ``dt`` is known); see
+        :func:`hbjax.plot.plot_recording`."""
+        from .._plot.recording import plot_recording  # matplotlib only when plotting
+
+        return plot_recording(self, **kwargs)
 
     def __repr__(self) -> str:
         dt = "None" if self.dt is None else f"{self.dt:g}"
-        return f"Recording(name={self.name!r}, samples={len(self)}, dt={dt}, source={self.source!r})"
+        extra = f", channels={list(self.channels)}" if self.channels else ""
+        return (f"Recording(name={self.name!r}, samples={len(self)}, dt={dt}, "
+                f"source={self.source!r}{extra})")
 
 
 def _finite_column(x, name: str) -> np.ndarray:

@@ -1,0 +1,34 @@
+"""Figure of a :class:`hbjax.Recording`: input, output and extra channels against time."""
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+
+def time_axis(n: int, dt=None, t0: float = 0.0) -> tuple[np.ndarray, str]:
+    """Sample times and the axis label: seconds when ``dt`` is known, else sample numbers."""
+    k = np.arange(n, dtype=np.float64)
+    if dt is None:
+        return t0 + k, "sample"
+    return t0 + k * dt, "time (s)"
+
+
+def plot_recording(rec, *, channels=True, axes=None, **line_kwargs):
+    """One panel per signal: the input ``v``, the output ``y`` and (with `channels`, or a
+    list of channel names) the extra channels, against time in seconds when ``dt`` is
+    known. Returns the axes."""
+    names = list(rec.channels) if channels is True else list(channels or [])
+    signals = [("v (input)", rec.v), ("y (output)", rec.y)]
+    signals += [(n, rec.channels[n]) for n in names]
+    if axes is None:
+        _, axes = plt.subplots(len(signals), 1, figsize=(8, 1.8 * len(signals) + 0.6),
+                               sharex=True, squeeze=False)
+        axes = axes[:, 0]
+    t, label = time_axis(len(rec), rec.dt, rec.t0)
+    for ax, (name, x) in zip(axes, signals):
+        ax.plot(t, x, lw=line_kwargs.pop("lw", 1), **line_kwargs)
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel(label)
+    if rec.name:
+        axes[0].set_title(rec.name)
+    return axes
