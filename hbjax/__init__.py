@@ -1,7 +1,6 @@
 """hbjax: identification of Hammerstein systems with a hysteresis-backlash input
 nonlinearity (Giri et al.), in JAX."""
 
-from ._core import precision as _config  # noqa: F401  (enables float64 before any array is made)
 from ._core.arx import ARX as ARX
 from ._core.backlash import Backlash as Backlash
 from ._core.defaults import default_design as default_design, default_system as default_system
@@ -24,15 +23,30 @@ from ._identify.separable import separable_ls as separable_ls
 from ._montecarlo.run import Study as Study, monte_carlo as monte_carlo
 # --- diagnosis (issue 5) ---
 from ._diagnose.concealed import ConcealedRecording as ConcealedRecording, concealed_recording as concealed_recording
+from ._diagnose.nominal import identify_nominal as identify_nominal
+from ._diagnose.residual_tests import fit_percent as fit_percent
 from ._diagnose.diagnose import Diagnosis as Diagnosis, Finding as Finding, diagnose as diagnose
 from ._diagnose.effects import EFFECTS as EFFECTS
 # --- io, datasets, cli (issue 6) ---
-from . import datasets as datasets
+from . import datasets as datasets, internal as internal
 from ._io.recording import (
     Recording as Recording,
     load_recording as load_recording,
     save_recording as save_recording,
 )
-from ._io.modelfile import load_model as load_model, save_model as save_model
+from ._io.modelfile import (
+    ModelFileError as ModelFileError,
+    load_model as load_model,
+    save_model as save_model,
+)
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # `hbjax.plot` works after a plain `import hbjax`, but matplotlib is loaded only on first use.
+    if name == "plot":
+        import importlib
+
+        return importlib.import_module(".plot", __name__)
+    raise AttributeError(f"module 'hbjax' has no attribute {name!r}")

@@ -14,8 +14,13 @@ def is_traced(x) -> bool:
     return isinstance(x, jax.core.Tracer)
 
 
-def as_float_array(x, name: str, ndim: int | None = None) -> jax.Array:
-    """Convert ``x`` to a float64 JAX array, naming ``name`` in any error."""
+def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None) -> jax.Array:
+    """Convert ``x`` to a real floating JAX array, naming ``name`` in any error.
+
+    Floating inputs keep their precision (float32 stays float32 for training pipelines);
+    integers and booleans become JAX's default float. Estimators pass ``dtype=jnp.float64``
+    after :func:`hbjax._core.precision.require_x64`.
+    """
     if isinstance(x, (str, bytes)) or x is None:
         raise TypeError(f"`{name}` must be a numeric array, got {type(x).__name__}.")
     if not is_traced(x):
@@ -31,7 +36,11 @@ def as_float_array(x, name: str, ndim: int | None = None) -> jax.Array:
             raise TypeError(f"`{name}` must be a numeric array, got dtype {arr.dtype}.")
         if np.iscomplexobj(arr):
             raise TypeError(f"`{name}` must be real, got complex dtype {arr.dtype}.")
-    out = jnp.asarray(x, dtype=jnp.float64)
+    out = jnp.asarray(x)
+    if dtype is not None:
+        out = out.astype(dtype)
+    elif not jnp.issubdtype(out.dtype, jnp.inexact):
+        out = out.astype(jnp.result_type(float))
     if ndim is not None and out.ndim != ndim:
         raise ValueError(
             f"`{name}` must be a {ndim}-D array, got shape {tuple(out.shape)}."
@@ -51,8 +60,16 @@ def check_finite(x: jax.Array, name: str) -> jax.Array:
     return x
 
 
+def float_dtype(*trees):
+    """The floating dtype a computation on these arrays/pytrees runs in (NumPy promotion of
+    their floating leaves; JAX's default float when there are none)."""
+    leaves = [x for t in trees for x in jax.tree_util.tree_leaves(t)
+              if hasattr(x, "dtype") and jnp.issubdtype(x.dtype, jnp.inexact)]
+    return jnp.result_type(*leaves) if leaves else jnp.result_type(float)
+
+
 def signal(x, name: str, *, min_length: int = 1, finite: bool = True) -> jax.Array:
-    """A 1-D float64 time series of at least ``min_length`` samples, checked finite
+    """A 1-D floating time series of at least ``min_length`` samples, checked finite
     (``finite=False`` leaves a traced array's check to :func:`guard_finite`)."""
     arr = as_float_array(x, name, ndim=1)
     if arr.shape[0] < min_length:

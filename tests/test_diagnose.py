@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax import _effects as fx
+from hbjax._diagnose import effects as fx
 from hbjax._diagnose.kernel import fast_jacobian, fast_prediction_error, prediction_error
 
 

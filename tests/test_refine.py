@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import hbjax
-from hbjax import _criteria as C
+from hbjax._identify import criteria as C
 from hbjax._core.model import play_trajectory
 from hbjax._identify.refine import RESULTS, refine_batch, refine_traceable
 
@@ -318,7 +318,7 @@ def _free_start(recs, start, h_m=4.0):
 def test_sufficient_statistics_reproduce_the_full_residual(paper):
     """``w^T (M^T M) w`` is the sum of squared prediction errors and ``D^T M^T M D`` the
     Gauss-Newton matrix of the full residual, at a point away from the optimum."""
-    from hbjax import _sufficient as S
+    from hbjax._identify import sufficient as S
 
     recs = tuple((jnp.asarray(v), jnp.asarray(y)) for v, y in paper["recs"])
     start = hbjax.unflatten_params(paper["truth"], hbjax.flatten_params(paper["truth"]) * 1.1)
@@ -356,7 +356,7 @@ def test_statistics_path_and_its_fallback_match_the_full_solve(paper, monkeypatc
     """Rounds on the Gram matrix reach the full solve's optimum; when the play operator's
     sources have not settled after the allowed rounds, the full solve finishes from there
     and reaches it too."""
-    from hbjax import _sufficient as S
+    from hbjax._identify import sufficient as S
 
     if max_rounds is not None:
         monkeypatch.setattr(S, "MAX_ROUNDS", max_rounds)

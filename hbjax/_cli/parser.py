@@ -221,6 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    # The command-line tool is a program of its own: it, not the library, switches on float64.
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

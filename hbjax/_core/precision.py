@@ -1,21 +1,19 @@
 """Numerical precision policy.
 
-Identification solves least-squares and Vandermonde systems whose accuracy float32
-cannot carry, so importing :mod:`hbjax` enables JAX's 64-bit mode
-(``jax_enable_x64``). Every array the package creates is float64; integer and float32
-inputs are promoted to float64.
+Identification solves least-squares and Vandermonde systems whose accuracy float32 cannot
+carry, so the estimators need JAX's 64-bit mode. Importing :mod:`hbjax` changes no global
+setting: the user enables it (``jax.config.update("jax_enable_x64", True)``, once, at the
+start of the program) and each estimator checks. The simulator (``simulate``, ``predict``,
+``play``) computes in the dtype it is given, so float32 pipelines stay float32.
 """
 
 import jax
 
 
-jax.config.update("jax_enable_x64", True)
-
-
 def require_x64(where: str) -> None:
-    """Raise if 64-bit mode was switched off after import (never compute in float32)."""
+    """Raise one clear line if JAX's 64-bit mode is off (estimators never run in float32)."""
     if not jax.config.read("jax_enable_x64"):
         raise RuntimeError(
-            f"{where} needs float64: hbjax enables `jax_enable_x64` on import; "
-            "re-enable it with jax.config.update('jax_enable_x64', True)."
+            f"{where} needs float64: call jax.config.update('jax_enable_x64', True) at the start "
+            "of your program, before creating any array."
         )

@@ -8,8 +8,14 @@ from jaxtyping import Array, Float
 
 from .arx import ARX
 from .backlash import Backlash
-from .._misc import as_float_array, check_finite, guard_finite, is_traced, same_length, signal
+from .._misc import (
+    as_float_array, check_finite, float_dtype, guard_finite, is_traced, same_length, signal,
+)
+from .buckets import bucket_length, pad, should_bucket
+from .cache import ensure_compilation_cache
+from .initial import injection, output_lags
 from .model import AbstractModel, Hammerstein, play_trajectory
+from .relaxed import relax
 
 
 def _check_model(model, cls=AbstractModel, name="model"):
@@ -63,35 +69,90 @@ def _play(backlash, v, u0):
 
 
 @eqx.filter_jit
-def _simulate(model, v, noise, u0):
+def _simulate(model, v, noise, u0, y0=None, valid=None):
+    if y0 is not None:  # a past (y0, u0) is a known equation error on the first samples
+        noise = noise + injection(model, y0, u0, v.shape[0]).astype(noise.dtype)
     y = model.simulate_trajectory(v, noise, u0)
     # Fused with the scan: the eager divergence check costs no extra pass over y.
-    return y, jnp.all(jnp.isfinite(y))
+    finite = jnp.isfinite(y)
+    if valid is not None:  # the padded tail of a bucketed record does not count
+        finite = finite | (jnp.arange(y.shape[0]) >= valid)
+    return y, jnp.all(finite)
+
+
+def _causal(fn, model, records, *rest, **kwargs):
+    """``fn(model, *records, *rest)``; an eager call runs on records padded to their
+    length's bucket (``buckets.py``: one compiled program for many lengths) and returns the
+    first ``N`` samples, which the padding cannot change (the recursions are causal)."""
+    if not should_bucket(*records):
+        return fn(model, *records, *rest, **kwargs)
+    n = records[0].shape[0]
+    size = bucket_length(n)
+    if fn is _simulate:
+        kwargs["valid"] = jnp.asarray(n)
+    out = fn(model, *(pad(r, size) for r in records), *rest, **kwargs)
+    return jax.tree_util.tree_map(lambda a: a[:n] if a.ndim else a, out)
+
+
+def _smoothing(smoothing):
+    """``None`` (exact operator) or a scalar >= 0, checked when concrete."""
+    if smoothing is None:
+        return None
+    eps = as_float_array(smoothing, "smoothing")
+    if eps.ndim != 0:
+        raise ValueError(f"`smoothing` must be a scalar, got shape {tuple(eps.shape)}.")
+    if not is_traced(eps) and not (np.isfinite(float(eps)) and float(eps) >= 0):
+        raise ValueError(f"`smoothing` must be a finite number >= 0, got {smoothing!r}.")
+    return eps
+
+
+def _relaxed_model(model, smoothing):
+    eps = _smoothing(smoothing)
+    if eps is None:
+        return model
+    if not isinstance(model, Hammerstein):
+        raise TypeError(
+            f"`smoothing` needs an hbjax.Hammerstein model, got {type(model).__name__}."
+        )
+    return eqx.tree_at(lambda m: m.backlash, model, relax(model.backlash, eps))
 
 
 @eqx.filter_jit
-def _predict(model, v, y, u0):
-    return model.predict_trajectory(v, y, u0)
+def _predict(model, v, y, u0, y0=None):
+    y_hat = model.predict_trajectory(v, y, u0)
+    if y0 is not None:
+        y_hat = y_hat + injection(model, y0, u0, v.shape[0]).astype(y_hat.dtype)
+    return y_hat
 
 
-def play(backlash: Backlash, v, *, u0=0.0) -> Float[Array, " time"]:
+def play(backlash: Backlash, v, *, u0=0.0, smoothing=None) -> Float[Array, " time"]:
     """The internal signal ``u = HB(P1, P2)(v)`` of the generalised play operator.
 
     ``u(t) = min(max(u(t-1), L(v(t))), H(v(t)))`` with ``u(-1) = u0``
     (paper Fig. 2; ``docs/conventions.md``).
 
     **Arguments:** `backlash` (a :class:`hbjax.Backlash`), `v` (input, shape ``(T,)``),
-    `u0` (state before the first sample).
+    `u0` (state before the first sample), `smoothing` (``None``: the exact operator; a
+    number ``eps > 0``: the relaxed operator for training, ``max``/``min`` replaced by
+    log-sum-exp smoothings at temperature ``eps (H(v) - L(v))``, whose derivative with
+    respect to ``v`` is non-zero inside the band and which tends to the exact operator as
+    ``eps -> 0``; ``docs/training.md``).
 
-    **Returns:** ``u``, shape ``(T,)``.
+    **Returns:** ``u``, shape ``(T,)``, in the dtype of `v` and `backlash`.
     """
+    ensure_compilation_cache()
     _check_model(backlash, Backlash, "backlash")
     v = signal(v, "v", finite=False)
+    v = v.astype(float_dtype(backlash, v))
     u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v), backlash)
-    return _play(backlash, v, u0)
+    eps = _smoothing(smoothing)
+    if eps is not None:
+        backlash = relax(backlash, eps)
+    return _causal(_play, backlash, (v,), u0)
 
 
-def simulate(model: AbstractModel, v, noise=None, *, u0=0.0) -> Float[Array, " time"]:
+def simulate(model: AbstractModel, v, noise=None, *, u0=0.0, y0=None,
+             smoothing=None) -> Float[Array, " time"]:
     """Free-run output of ``model`` driven by ``v`` (paper eq. (10)).
 
     ``y(t) = -sum_i a_i y(t-i) + sum_i b_i u(t-i) + xi(t)`` with ``u = HB(v)``,
@@ -107,32 +168,54 @@ def simulate(model: AbstractModel, v, noise=None, *, u0=0.0) -> Float[Array, " t
     - `v`: input record, shape ``(T,)``.
     - `noise`: equation error ``xi``, shape ``(T,)``, or ``None`` for none.
     - `u0`: play-operator state before the first sample.
+    - `y0`: ``None`` for the zero initial conditions above, or the output lags before the
+      first sample, most recent first: ``[y(-1), ..., y(-na)]`` (the order of ``a``;
+      :class:`hbjax.Hammerstein` models only). With `y0` the record continues a past in
+      which the play operator held ``u0``: the input lags are ``u(-j) = u0`` too, so a
+      system at rest starts at rest (``y0 = B(1) u0 / A(1)`` gives no transient).
+      :func:`hbjax.estimate_initial_state` estimates ``(y0, u0)`` from a recording.
+    - `smoothing`: ``None`` for the exact play operator, or ``eps > 0`` for the relaxed one
+      of :func:`hbjax.play` (:class:`hbjax.Hammerstein` models only): gradients with
+      respect to `v` then flow inside the band, for training (``docs/training.md``).
 
-    **Returns:** ``y``, shape ``(T,)``.
+    **Returns:** ``y``, shape ``(T,)``, in the dtype of `model`, `v` and `noise`.
     """
+    ensure_compilation_cache()
     _check_model(model)
+    model = _relaxed_model(model, smoothing)
     v = signal(v, "v", finite=False)
     if noise is None:
         noise = jnp.zeros_like(v)
     else:
         noise = signal(noise, "noise", finite=False)
         same_length(v=v, noise=noise)
+    # One dtype for the whole run: float32 in, float32 out (training pipelines on GPUs).
+    dtype = float_dtype(model, v, noise)
+    v, noise = v.astype(dtype), noise.astype(dtype)
     u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v, noise=noise), model)
-    return _check_output(*_simulate(model, v, noise, u0), model)
+    if y0 is not None:
+        y0 = output_lags(model, y0, dtype)
+    return _check_output(*_causal(_simulate, model, (v, noise), u0, y0), model)
 
 
-def predict(model: AbstractModel, v, y, *, u0=0.0) -> Float[Array, " time"]:
+def predict(model: AbstractModel, v, y, *, u0=0.0, y0=None) -> Float[Array, " time"]:
     """One-step-ahead predictor ``y_hat(t) = -sum_i a_i y(t-i) + sum_i b_i u(t-i)``.
 
     The predictor of eq. (10) under the paper's equation-error noise: ``y - y_hat`` is the
     equation error ``xi`` when the model is right. Zero initial conditions as in
-    :func:`simulate`.
+    :func:`simulate`, or, with `y0`, the past ``y(-i) = y0[i-1]``, ``u(-j) = u0`` (as in
+    :func:`simulate`).
 
     **Returns:** ``y_hat``, shape ``(T,)``.
     """
+    ensure_compilation_cache()
     _check_model(model)
     v = signal(v, "v", finite=False)
     y = signal(y, "y", finite=False)
     same_length(v=v, y=y)
+    dtype = float_dtype(model, v, y)
+    v, y = v.astype(dtype), y.astype(dtype)
     u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v, y=y), model)
-    return _predict(model, v, y, u0)
+    if y0 is not None:
+        y0 = output_lags(model, y0, dtype)
+    return _causal(_predict, model, (v, y), u0, y0)

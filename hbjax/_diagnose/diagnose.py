@@ -27,6 +27,7 @@ import numpy as np
 from . import candidates as cands
 from . import effects as fx
 from . import residual_tests as rt
+from .._core.precision import require_x64
 from .._misc import as_float_array, check_finite, same_length
 from .solve import evaluate_batch, fit_batch, jacobian, sse_batch
 from .effects import EFFECTS, base_theta
@@ -156,8 +157,8 @@ def _check_inputs(model, v, y, holdout, effects, key):
         # Its free run diverges: every simulation-based statistic would be inf/NaN.
         raise ValueError("the nominal `model` has an unstable A (assumption A3): its free run "
                          "diverges; start from a stable nominal model.")
-    v = check_finite(as_float_array(v, "v", ndim=1), "v")
-    y = check_finite(as_float_array(y, "y", ndim=1), "y")
+    v = check_finite(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v")
+    y = check_finite(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y")
     same_length(v=v, y=y)
     if isinstance(holdout, bool) or not isinstance(holdout, (int, float)) or not 0 < holdout < 1:
         raise ValueError(f"`holdout` must be a fraction in (0, 1), got {holdout!r}.")
@@ -241,6 +242,7 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
 
     **Returns:** a :class:`Diagnosis`.
     """
+    require_x64("diagnose")
     v, y, n_fit, effects = _check_inputs(model, v, y, holdout, effects, key)
     if criterion not in ("prediction", "simulation"):
         raise ValueError(f"`criterion` must be 'prediction' or 'simulation', got {criterion!r}.")

@@ -11,6 +11,7 @@ import numpy as np
 from . import candidates as cands
 from .._core.arx import ARX
 from .._core.backlash import Backlash
+from .._core.precision import require_x64
 from .._misc import as_float_array, check_finite, same_length
 from .solve import fit_batch
 from .effects import base_theta
@@ -62,8 +63,9 @@ def identify_nominal(v, y, *, na: int = 2, nb: int = 2, m: int = 3, gap: float |
     `criterion` (``"prediction"`` or ``"simulation"``: output error, better for slow
     processes), `transient` (samples at the start left out of the criterion).
     """
-    v = np.asarray(check_finite(as_float_array(v, "v", ndim=1), "v"))
-    y = np.asarray(check_finite(as_float_array(y, "y", ndim=1), "y"))
+    require_x64("identify_nominal")
+    v = np.asarray(check_finite(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v"))
+    y = np.asarray(check_finite(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y"))
     same_length(v=v, y=y)
     if m < 2:
         raise ValueError(f"`m` must be >= 2 (affine branches at least), got {m}.")

@@ -89,7 +89,7 @@ def normalise(model: Hammerstein, h_m) -> Hammerstein:
     """
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
-    h_m = as_float_array(h_m, "h_m")
+    h_m = as_float_array(h_m, "h_m", dtype=jnp.float64)
     if h_m.ndim != 0:
         raise ValueError(f"`h_m` must be a scalar, got shape {tuple(h_m.shape)}.")
     if is_traced(h_m):
@@ -245,7 +245,7 @@ _estimate_jit = eqx.filter_jit(estimate_giri)
 
 
 def _record(y, name, minimum, what):
-    y = as_float_array(y, name, ndim=1)
+    y = as_float_array(y, name, ndim=1, dtype=jnp.float64)
     if y.shape[0] < minimum:
         raise ValueError(
             f"`{name}` has {y.shape[0]} samples; it must cover at least {what} "
@@ -255,7 +255,7 @@ def _record(y, name, minimum, what):
 
 
 def _check_input_record(design, v, name, expected):
-    v = np.asarray(as_float_array(v, name, ndim=1))
+    v = np.asarray(as_float_array(v, name, ndim=1, dtype=jnp.float64))
     if name == "v2":
         off = ~np.isclose(np.abs(v), design.h_m, rtol=0, atol=1e-12 * design.h_m)
         if off.any():

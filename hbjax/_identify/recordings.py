@@ -39,8 +39,8 @@ def as_recordings(recordings, name: str = "recordings"):
     out = []
     for k, (v, y) in enumerate(items):
         tag = f"{name}[{k}]" if len(items) > 1 else name
-        v = as_float_array(v, f"{tag} v", ndim=1)
-        y = as_float_array(y, f"{tag} y", ndim=1)
+        v = as_float_array(v, f"{tag} v", ndim=1, dtype=jnp.float64)
+        y = as_float_array(y, f"{tag} y", ndim=1, dtype=jnp.float64)
         if v.shape[0] != y.shape[0]:
             raise ValueError(
                 f"records must have equal lengths: in `{tag}`, v has {v.shape[0]} samples "
