@@ -19,6 +19,10 @@ from ._identify.crlb import CRLBResult as CRLBResult, crlb as crlb
 from ._identify.fit import FitResult as FitResult, fit as fit, normalise_static_gain as normalise_static_gain
 from ._identify.refine import RefineResult as RefineResult, RefinementError as RefinementError, refine as refine
 from ._identify.separable import separable_ls as separable_ls
+# --- validation: initial state, compare, resid, structure selection ---
+from ._core.initial import InitialState as InitialState, estimate_initial_state as estimate_initial_state
+from ._identify.compare import Comparison as Comparison, compare as compare
+from ._identify.residual_analysis import ResidualAnalysis as ResidualAnalysis, resid as resid
 # --- monte carlo (issue 4) ---
 from ._montecarlo.run import Study as Study, monte_carlo as monte_carlo
 # --- diagnosis (issue 5) ---

@@ -1,0 +1,174 @@
+"""Initial conditions of the HB-Hammerstein model: output lags before the first sample and
+the play operator's state, given (:func:`hbjax.simulate`, :func:`hbjax.predict`) or
+estimated from a recording (:func:`estimate_initial_state`, as MATLAB's
+``'InitialCondition', 'e'``).
+
+A past ``y(-i) = y0[i-1]`` (``i = 1..na``) and ``u(-j) = u0`` (``j = 1..nb``) enters the
+recursion of eq. (10) only through the first ``n = max(na, nb)`` samples, as the known term
+
+    ``d(t) = -sum_{i > t} a_i y0[i-t-1] + sum_{j > t} b_j u0``,  ``t = 0..n-1``,
+
+so a run from that past equals a run from the paper's zero initial conditions with ``d``
+added to the equation error. That keeps the simulator's scan untouched (same speed, same
+jit/vmap/grad behaviour) and makes the output affine in ``y0``.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._misc import as_float_array, check_finite, same_length, signal
+from .model import AbstractModel, Hammerstein
+
+
+class InitialState(eqx.Module):
+    """An initial state of an HB-Hammerstein model.
+
+    - `y0`: output lags before the first sample, most recent first:
+      ``y0 = [y(-1), y(-2), ..., y(-na)]`` (the order of ``a``).
+    - `u0`: the play operator's state ``u(-1)``; the linear block's input lags before the
+      first sample are held at it (``u(-j) = u0``).
+    - `cost`: sum of squared free-run errors on the record it was estimated from.
+    """
+
+    y0: Float[Array, " na"]
+    u0: Float[Array, ""]
+    cost: Float[Array, ""]
+
+    def __repr__(self):
+        y0 = np.array2string(np.asarray(self.y0), precision=4)
+        return f"InitialState(y0={y0}, u0={float(self.u0):.6g}, cost={float(self.cost):.6g})"
+
+
+def output_lags(model: AbstractModel, y0, dtype=None) -> jax.Array:
+    """``y0`` checked against ``model``: a Hammerstein model and ``na`` finite values."""
+    if not isinstance(model, Hammerstein):
+        raise TypeError(
+            f"`y0` needs an hbjax.Hammerstein model (its ARX orders), got {type(model).__name__}."
+        )
+    y0 = as_float_array(y0, "y0", dtype=dtype)
+    if y0.ndim == 0:
+        y0 = y0[None]
+    na = model.arx.na
+    if y0.shape != (na,):
+        raise ValueError(
+            f"`y0` must hold the na = {na} output lags [y(-1), ..., y(-{na})], "
+            f"got shape {tuple(y0.shape)}."
+        )
+    return check_finite(y0, "y0")
+
+
+def injection(model: Hammerstein, y0, u0, length: int) -> jax.Array:
+    """The equation error ``d`` (module docstring) that a past ``(y0, u0)`` adds, padded
+    or cut to ``length`` samples."""
+    a, b = model.arx.a, model.arx.b
+    na, nb = model.arx.na, model.arx.nb
+    n = max(na, nb)
+    terms = []
+    for t in range(n):
+        d_t = jnp.zeros((), jnp.result_type(a, y0, u0))
+        for i in range(t + 1, na + 1):
+            d_t = d_t - a[i - 1] * y0[i - t - 1]
+        for j in range(t + 1, nb + 1):
+            d_t = d_t + b[j - 1] * u0
+        terms.append(d_t)
+    d = jnp.stack(terms) if terms else jnp.zeros(0)
+    if length <= n:
+        return d[:length]
+    return jnp.concatenate([d, jnp.zeros(length - n, d.dtype)])
+
+
+def _ar_filter(a, x):
+    """``z(t) = x(t) - sum_i a_i z(t-i)`` from zero initial conditions: the response of
+    ``1/A`` (columns of the least squares for ``y0``)."""
+    na = a.shape[0]
+
+    def step(lags, x_t):
+        z_t = x_t
+        for i in range(na):
+            z_t = z_t - a[i] * lags[i]
+        return ((z_t,) + lags[:-1]) if na else lags, z_t
+
+    return jax.lax.scan(step, (jnp.zeros((), x.dtype),) * na, x)[1]
+
+
+def _basis(model: Hammerstein, length: int, dtype):
+    """Free response to each output lag (``T x na``) and to ``u0`` in the input lags."""
+    a = model.arx.a.astype(dtype)
+    na = model.arx.na
+    zero = jnp.zeros((), dtype)
+    cols = [_ar_filter(a, injection(model, jnp.eye(na, dtype=dtype)[i], zero, length))
+            for i in range(na)]
+    h = jnp.stack(cols, axis=1) if na else jnp.zeros((length, 0), dtype)
+    g = _ar_filter(a, injection(model, jnp.zeros(na, dtype), jnp.ones((), dtype), length))
+    return h, g
+
+
+_GRID = 33
+_GOLDEN_STEPS = 30
+
+
+@eqx.filter_jit
+def _estimate(model: Hammerstein, v, y):
+    T = v.shape[0]
+    h, g = _basis(model, T, v.dtype)
+    q = jnp.linalg.qr(h)[0]
+    # Columns of 1/A that vanish within the record (a_na = 0) leave r singular: lstsq.
+    solve = lambda res: jnp.linalg.lstsq(h, res)[0] if h.shape[1] else jnp.zeros(0, v.dtype)  # noqa: E731
+
+    def cost(u0):
+        res = y - model.simulate_trajectory(v, jnp.zeros_like(v), u0) - u0 * g
+        proj = q.T @ res if h.shape[1] else jnp.zeros(0, v.dtype)
+        return jnp.sum(res**2) - jnp.sum(proj**2), res
+
+    bl = model.backlash
+    p1, p2 = bl.p1(v[0]), bl.p2(v[0])
+    lo, hi = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
+    # Outside the band at v(0) the play state is clipped to its edge: search the band only.
+    grid = jnp.linspace(lo, hi, _GRID)
+    costs = jax.vmap(lambda u: cost(u)[0])(grid)
+    k = jnp.argmin(costs)
+    step = (hi - lo) / (_GRID - 1)
+    left, right = jnp.maximum(grid[k] - step, lo), jnp.minimum(grid[k] + step, hi)
+    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+
+    def golden(_, bracket):
+        x0, x1 = bracket
+        c, d = x1 - ratio * (x1 - x0), x0 + ratio * (x1 - x0)
+        keep_left = cost(c)[0] <= cost(d)[0]
+        return jnp.where(keep_left, x0, c), jnp.where(keep_left, d, x1)
+
+    x0, x1 = jax.lax.fori_loop(0, _GOLDEN_STEPS, golden, (left, right))
+    u_best = jnp.where(cost((x0 + x1) / 2)[0] <= costs[k], (x0 + x1) / 2, grid[k])
+    c_best, res = cost(u_best)
+    return InitialState(solve(res), u_best, jnp.maximum(c_best, 0.0))
+
+
+def estimate_initial_state(model: Hammerstein, v, y) -> InitialState:
+    """Estimate the initial state (output lags ``y0`` and play state ``u0``) of a
+    recording for a given model, as MATLAB's ``'InitialCondition', 'e'``.
+
+    The free run from ``(y0, u0)`` is affine in ``y0`` (module docstring), so for every
+    candidate ``u0`` the best ``y0`` is a linear least-squares fit of the whole record's
+    free-run error; ``u0`` is searched over the band ``[L(v(0)), H(v(0))]`` at the first
+    input (outside it the play operator clips the state to the band's edge anyway) on a
+    33-point grid refined by golden-section search.
+
+    ``hbjax.simulate(model, v, u0=s.u0, y0=s.y0)`` reproduces the fitted free run. The
+    input lags before the first sample are held at ``u0`` (a system at rest in its play
+    state), as in :func:`hbjax.simulate` with ``y0``.
+
+    **Arguments:** `model` (an :class:`hbjax.Hammerstein`), `v`, `y` (the recording,
+    equal lengths). Jit-compatible.
+
+    **Returns:** an :class:`InitialState` ``(y0, u0, cost)``.
+    """
+    if not isinstance(model, Hammerstein):
+        raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    v = signal(v, "v")
+    y = signal(y, "y")
+    same_length(v=v, y=y)
+    dtype = jnp.result_type(v, y, model.arx.a)
+    return _estimate(model, v.astype(dtype), y.astype(dtype))

@@ -1,0 +1,204 @@
+"""Model validation on a recording, as MATLAB's ``compare``: free-run simulation or
+``k``-step-ahead prediction against the measured output, with its fit percentage."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._core.initial import estimate_initial_state, injection
+from .._core.model import AbstractModel, Hammerstein, lagged, play_trajectory
+from .._core.simulate import predict, simulate
+from .._diagnose.residual_tests import fit_percent
+from .._misc import as_float_array, is_traced, same_length
+
+INITIAL_STATES = ("zero", "estimate")
+
+
+def check_initial_state(initial_state) -> str:
+    if not isinstance(initial_state, str) or initial_state not in INITIAL_STATES:
+        raise ValueError(
+            f"`initial_state` must be one of {INITIAL_STATES}, got {initial_state!r}."
+        )
+    return initial_state
+
+
+def check_horizon(horizon):
+    if horizon is None:
+        return None
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)):
+        raise TypeError(f"`horizon` must be None or an integer >= 1, got {horizon!r}.")
+    if horizon < 1:
+        raise ValueError(f"`horizon` must be None (free run) or an integer >= 1, got {horizon}.")
+    return int(horizon)
+
+
+@eqx.filter_jit
+def _ahead(model: Hammerstein, v, y, horizon: int, u0, y0):
+    """``y_hat(t | t - horizon)``: measured outputs up to ``t - horizon``, the model's own
+    predictions after. With ``z_s(t)`` the ``s``-step prediction and ``z_r = y`` for
+    ``r <= 0``: ``z_s(t) = -sum_i a_i z_{s-i}(t-i) + sum_j b_j u(t-j)``."""
+    arx = model.arx
+    u = play_trajectory(model.backlash, v, u0)
+    base = jnp.zeros_like(v)
+    for j in range(arx.nb):
+        base = base + arx.b[j] * lagged(u, j + 1)
+    if y0 is not None:
+        base = base + injection(model, y0, u0, v.shape[0])
+    if arx.na == 0:
+        return base
+
+    def step(carry, _):
+        z = base
+        for i in range(arx.na):
+            z = z - arx.a[i] * lagged(carry[i], i + 1)
+        return (z,) + carry[:-1], None
+
+    carry, _ = jax.lax.scan(step, (y,) * arx.na, None, length=horizon)
+    return carry[0]
+
+
+def predict_ahead(model: AbstractModel, v, y, horizon: int, *, u0=0.0, y0=None):
+    """``horizon``-step-ahead prediction (1: :func:`hbjax.predict`; at least the record's
+    length: the free run of :func:`hbjax.simulate`)."""
+    if horizon >= int(np.shape(v)[0]):
+        return simulate(model, v, u0=u0, y0=y0)
+    if horizon == 1:
+        return predict(model, v, y, u0=u0, y0=y0)
+    if not isinstance(model, Hammerstein):
+        raise TypeError(f"`horizon` > 1 needs an hbjax.Hammerstein model, got "
+                        f"{type(model).__name__}.")
+    y0 = None if y0 is None else jnp.asarray(y0, v.dtype)
+    return _ahead(model, v, y, horizon, jnp.asarray(u0, v.dtype), y0)
+
+
+class Comparison(eqx.Module):
+    """What :func:`compare` measured, one row per model.
+
+    - `fit`: fit percentage ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` (a float for one
+      model, an array with one entry per model for a list).
+    - `rmse`: root-mean-square error ``||y - y_hat|| / sqrt(T)``, same shape.
+    - `y_hat`: the model outputs, ``(T,)`` or ``(models, T)``.
+    - `y`, `v`, `dt`: the recording (``dt`` in seconds or ``None``).
+    - `initial_states`: the :class:`hbjax.InitialState` used per model (``None`` for zero
+      initial conditions).
+    - `names`, `horizon` (``None``: free run), `initial_state`.
+    """
+
+    fits: np.ndarray
+    rmses: np.ndarray
+    y_hats: np.ndarray
+    y: np.ndarray
+    v: np.ndarray
+    initial_states: tuple
+    names: tuple = eqx.field(static=True)
+    horizon: int | None = eqx.field(static=True)
+    initial_state: str = eqx.field(static=True)
+    dt: float | None = eqx.field(static=True)
+    single: bool = eqx.field(static=True)
+
+    @property
+    def fit(self):
+        return float(self.fits[0]) if self.single else self.fits
+
+    @property
+    def rmse(self):
+        return float(self.rmses[0]) if self.single else self.rmses
+
+    @property
+    def y_hat(self):
+        return self.y_hats[0] if self.single else self.y_hats
+
+    def summary(self) -> str:
+        mode = "free run" if self.horizon is None else f"{self.horizon}-step-ahead prediction"
+        lines = [f"compare: {mode}, initial state {self.initial_state!r}, "
+                 f"{self.y.shape[0]} samples",
+                 f"{'model':<16}{'fit %':>10}{'RMSE':>12}{'u0':>12}  y0"]
+        for name, f, r, s in zip(self.names, self.fits, self.rmses, self.initial_states):
+            u0 = "0" if s is None else f"{float(s.u0):.4g}"
+            y0 = "zeros" if s is None else np.array2string(np.asarray(s.y0), precision=4)
+            lines.append(f"{name:<16}{f:>10.2f}{r:>12.4g}{u0:>12}  {y0}")
+        return "\n".join(lines)
+
+    def __repr__(self):
+        fits = ", ".join(f"{n}: {f:.2f}%" for n, f in zip(self.names, self.fits))
+        mode = "free run" if self.horizon is None else f"horizon={self.horizon}"
+        return f"Comparison({fits}; {mode}, initial_state={self.initial_state!r})"
+
+
+def _record(v, y):
+    dt = None
+    if y is None:
+        if not (hasattr(v, "v") and hasattr(v, "y")):
+            raise TypeError("`y` is missing: pass `v` and `y`, or an hbjax.Recording as `v`.")
+        dt, v, y = getattr(v, "dt", None), v.v, v.y
+    v = as_float_array(v, "v", ndim=1)
+    y = as_float_array(y, "y", ndim=1)
+    same_length(v=v, y=y)
+    if v.shape[0] < 2:
+        raise ValueError(f"`v` and `y` must hold at least 2 samples, got {v.shape[0]}.")
+    if is_traced(v) or is_traced(y):
+        raise TypeError("`compare` works on concrete recordings; it cannot be jit-compiled.")
+    return v, y, dt
+
+
+def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
+            names=None) -> Comparison:
+    """Compare model outputs with a measured output, as MATLAB's ``compare``.
+
+    Each model is run on ``v`` either freely (``horizon=None``: :func:`hbjax.simulate`) or
+    as a ``horizon``-step-ahead predictor (measured outputs up to ``t - horizon``, the
+    model's own outputs after; ``horizon=1`` is :func:`hbjax.predict`), and scored with
+    the fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` and the RMSE.
+
+    **Arguments:**
+
+    - `model`: an :class:`hbjax.AbstractModel` or a list of them (one row each).
+    - `v`, `y`: the recording; or an :class:`hbjax.Recording` as `v` (then `y` is omitted
+      and the figure's time axis is in seconds when its ``dt`` is known).
+    - `initial_state`: ``"estimate"`` (default; output lags and play state estimated per
+      model by :func:`hbjax.estimate_initial_state`, as MATLAB's
+      ``'InitialCondition', 'e'``: real records rarely start at rest at zero) or
+      ``"zero"`` (the paper's zero initial conditions).
+    - `horizon`: ``None`` for the free run, or an integer ``>= 1``.
+    - `names`: labels of the models (default ``model 0``, ``model 1``, ...).
+
+    **Returns:** a :class:`Comparison` (``.fit``, ``.rmse``, ``.y_hat``, ``summary()``).
+    """
+    check_initial_state(initial_state)
+    horizon = check_horizon(horizon)
+    single = isinstance(model, AbstractModel)
+    models = [model] if single else model
+    if not isinstance(models, (list, tuple)) or not models:
+        raise TypeError("`model` must be an hbjax model or a non-empty list of them.")
+    for k, mdl in enumerate(models):
+        if not isinstance(mdl, AbstractModel):
+            raise TypeError(f"`model[{k}]` must be an hbjax model, got {type(mdl).__name__}.")
+    if initial_state == "estimate" and not all(isinstance(m, Hammerstein) for m in models):
+        raise TypeError("`initial_state='estimate'` needs hbjax.Hammerstein models; pass "
+                        "initial_state='zero' for model extensions.")
+    names = tuple(f"model {k}" for k in range(len(models))) if names is None else tuple(names)
+    if len(names) != len(models):
+        raise ValueError(f"`names` must have one entry per model ({len(models)}), "
+                         f"got {len(names)}.")
+    v, y, dt = _record(v, y)
+    y_np = np.asarray(y)
+    fits, rmses, y_hats, states = [], [], [], []
+    for mdl in models:
+        state, kw = None, {}
+        if initial_state == "estimate":
+            state = estimate_initial_state(mdl, v, y)
+            kw = dict(u0=state.u0, y0=state.y0)
+        if horizon is None:
+            y_hat = simulate(mdl, v, **kw)
+        else:
+            y_hat = predict_ahead(mdl, v, y, horizon, **kw)
+        y_hat = np.asarray(y_hat)
+        fits.append(fit_percent(y_np, y_hat))
+        rmses.append(float(np.sqrt(np.mean((y_np - y_hat) ** 2))))
+        y_hats.append(y_hat)
+        states.append(state)
+    return Comparison(np.asarray(fits), np.asarray(rmses), np.stack(y_hats), y_np,
+                      np.asarray(v), tuple(states), names, horizon, initial_state, dt, single)
+
+
