@@ -89,9 +89,11 @@ def _causal(fn, model, records, *rest, **kwargs):
     n = records[0].shape[0]
     size = bucket_length(n)
     if fn is _simulate:
-        kwargs["valid"] = jnp.asarray(n)
+        kwargs["valid"] = np.asarray(n)
+    # Padding and slicing on the host: an eager jnp op would itself compile per length.
     out = fn(model, *(pad(r, size) for r in records), *rest, **kwargs)
-    return jax.tree_util.tree_map(lambda a: a[:n] if a.ndim else a, out)
+    return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[:n]) if a.ndim else a,
+                                  out)
 
 
 def _smoothing(smoothing):
@@ -184,8 +186,8 @@ def simulate(model: AbstractModel, v, noise=None, *, u0=0.0, y0=None,
     _check_model(model)
     model = _relaxed_model(model, smoothing)
     v = signal(v, "v", finite=False)
-    if noise is None:
-        noise = jnp.zeros_like(v)
+    if noise is None:  # (NumPy when eager: jnp.zeros_like would compile per length)
+        noise = jnp.zeros_like(v) if is_traced(v) else np.zeros(v.shape, v.dtype)
     else:
         noise = signal(noise, "noise", finite=False)
         same_length(v=v, noise=noise)

@@ -27,7 +27,9 @@ import numpy as np
 from . import candidates as cands
 from . import effects as fx
 from . import residual_tests as rt
+from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
+from .._core.progress import check_progress, progress_bar
 from .._misc import as_float_array, check_finite, same_length
 from .solve import evaluate_batch, fit_batch, jacobian, sse_batch
 from .effects import EFFECTS, base_theta
@@ -221,7 +223,7 @@ def change_scan(J, e, burn, grid=100):
 
 
 def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, key=None,
-             criterion: str = "prediction"):
+             criterion: str = "prediction", progress=True):
     """Locate, name and model what the nominal ``model`` leaves out of a recording.
 
     **Arguments:**
@@ -239,10 +241,20 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
       control; ``colored_noise`` and ``parameter_change`` are then not candidates and the
       first 20% of the fitting
       segment, at most 300 samples, is a start-up transient left out of the criterion).
+    - `progress`: a progress bar over the stages (nominal model, candidate starts,
+      candidate fits, decision) once the diagnosis has run for more than 2 s on a terminal
+      or in Jupyter; ``False`` silences it, a dict passes options to tqdm.
 
     **Returns:** a :class:`Diagnosis`.
     """
     require_x64("diagnose")
+    ensure_compilation_cache()
+    check_progress(progress)
+    with progress_bar(progress, total=4, desc="diagnose", unit="stage", live=True) as bar:
+        return _diagnose(model, v, y, holdout, effects, key, criterion, bar)
+
+
+def _diagnose(model, v, y, holdout, effects, key, criterion, bar):
     v, y, n_fit, effects = _check_inputs(model, v, y, holdout, effects, key)
     if criterion not in ("prediction", "simulation"):
         raise ValueError(f"`criterion` must be 'prediction' or 'simulation', got {criterion!r}.")
@@ -273,6 +285,7 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
     ctx = cands.Context(lay, theta_nom, consts, v_fit, y_fit, ysim_nom[:n_fit], u_nom[:n_fit],
                         eps_nom[:n_fit], burn, tests["change_scan"])
 
+    bar.update(1)
     # 2. Candidates: choose each start by a batched criterion evaluation, then fit all.
     candidates = cands.build(ctx, effects)
     starts = [(ci, th, it) for ci, c in enumerate(candidates) for th, it in c.starts]
@@ -284,9 +297,11 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
             chosen[ci] = (val, th, it)
     theta0 = [chosen[i][1] for i in range(len(candidates))]
     ints = [chosen[i][2] for i in range(len(candidates))]
+    bar.update(1)
     theta_fit, steps, ok = _fit_groups(lay, candidates, theta0, ints, consts, v_fit, y_fit, burn,
                                        criterion)
 
+    bar.update(1)
     # 3. Whole-record evaluation of nominal + every fitted candidate, then the decision.
     all_theta = jnp.concatenate([theta_nom[None], theta_fit])
     all_ints = jnp.asarray(np.stack([cands._ints()] + ints))
@@ -316,6 +331,7 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
     unexplained = (tests["whiteness"]["p_value"] < 1e-3
                    and tests["independence"]["p_value"] < 1e-3)
     tests["unexplained_structure"] = bool(unexplained and not findings)
+    bar.update(1)
     return Diagnosis(bool(findings) or unexplained, findings, _jsonable(tests), _jsonable(table),
                      n_fit, T - n_fit, model, v, y)
 

@@ -11,6 +11,7 @@ import numpy as np
 from . import candidates as cands
 from .._core.arx import ARX
 from .._core.backlash import Backlash
+from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._misc import as_float_array, check_finite, same_length
 from .solve import fit_batch
@@ -64,6 +65,7 @@ def identify_nominal(v, y, *, na: int = 2, nb: int = 2, m: int = 3, gap: float |
     processes), `transient` (samples at the start left out of the criterion).
     """
     require_x64("identify_nominal")
+    ensure_compilation_cache()
     v = np.asarray(check_finite(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v"))
     y = np.asarray(check_finite(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y"))
     same_length(v=v, y=y)

@@ -8,6 +8,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._misc import is_traced, positive_float
+from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .criteria import PAPER, STATIC_GAIN, Parametrisation, outputs
 from .._core.model import Hammerstein
@@ -101,6 +102,7 @@ def crlb(model: Hammerstein, recordings, *, noise_std, criterion: str = "predict
     **Returns:** a :class:`CRLBResult`.
     """
     require_x64("crlb")
+    ensure_compilation_cache()
     check_model(model)
     check_criterion(criterion)
     recs = as_recordings(recordings)

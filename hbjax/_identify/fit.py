@@ -14,6 +14,8 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._core.arx import ARX
 from .._core.backlash import Backlash
+from .._core.cache import ensure_compilation_cache
+from .._core.progress import check_progress, progress_bar
 from .._misc import is_traced, positive_int
 from .._core.precision import require_x64
 from .criteria import data_scale, play_sources
@@ -165,7 +167,8 @@ _fit_jit = eqx.filter_jit(fit_traceable)
 
 
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
-        criterion: str = "prediction", max_steps: int = 256, throw: bool = True) -> FitResult:
+        criterion: str = "prediction", max_steps: int = 256, throw: bool = True,
+        progress=True) -> FitResult:
     """Identify an HB-Hammerstein model from ordinary recordings (steps, multisines, random
     levels; no special input), by multi-start nonlinear least squares.
 
@@ -190,10 +193,15 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     - `criterion`: ``"prediction"`` (equation error) or ``"simulation"`` (output error).
     - `max_steps`: Levenberg–Marquardt steps per start.
     - `throw`: raise :class:`hbjax.RefinementError` if no start converged.
+    - `progress`: a progress bar (``tqdm.auto``, on stderr) once the fit has run for more
+      than 2 s on a terminal or in Jupyter; ``False`` silences it, a dict passes options
+      to tqdm (``docs/performance.md``).
 
     **Returns:** a :class:`FitResult`.
     """
     require_x64("fit")
+    ensure_compilation_cache()
+    check_progress(progress)
     na = positive_int(na, "na", minimum=0)
     nb = positive_int(nb, "nb")
     m = positive_int(m, "m")
@@ -212,8 +220,12 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
             f"`recordings` hold {total_samples(recs)} samples; fitting {q} free parameters "
             f"needs more than {2 * q}."
         )
-    res = _fit_jit(recs, key, na=na, nb=nb, m=m, starts=starts, criterion=criterion,
-                   max_steps=max_steps)
+    # The starts run together in one vmapped program: the bar shows the elapsed time.
+    with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
+        res = _fit_jit(recs, key, na=na, nb=nb, m=m, starts=starts, criterion=criterion,
+                       max_steps=max_steps)
+        jax.block_until_ready(res)
+        bar.update(starts)
     if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
         raise RefinementError(
             f"fit: no start converged ({res.message}); try more `starts` or `max_steps`."

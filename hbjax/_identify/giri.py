@@ -10,6 +10,7 @@ from jaxtyping import Array, Float, Int
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import as_float_array, check_finite, is_traced
+from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._core.model import Hammerstein, lagged
 from .._core.signals import GiriDesign
@@ -295,6 +296,7 @@ def identify_giri(design: GiriDesign, y1, y2, y3, *, v1=None, v2=None, v3=None,
     **Returns:** a :class:`GiriResult`.
     """
     require_x64("identify_giri")
+    ensure_compilation_cache()
     if not isinstance(design, GiriDesign):
         raise TypeError(f"`design` must be an hbjax.GiriDesign, got {type(design).__name__}.")
     y1 = _record(y1, "y1", 4, "a few samples of the v1 step")

@@ -8,7 +8,6 @@ bounded whatever the number of realisations.
 """
 
 import inspect
-import sys
 import time
 from collections.abc import Sequence
 
@@ -18,7 +17,9 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._misc import is_traced, positive_float, positive_int
+from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
+from .._core.progress import check_progress, make_bar
 from .._identify.giri import NONFINITE, estimate_giri, normalise
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, param_names
@@ -242,19 +243,9 @@ def _resolve_devices(devices):
 
 
 def _progress(total, enabled):
-    """A tqdm bar over chunks, or None: off when asked, and when stderr is neither a
-    terminal nor a Jupyter kernel (logs and CI stay clean)."""
-    if not enabled:
-        return None
-    in_kernel = "ipykernel" in sys.modules and "IPython" in sys.modules and getattr(
-        sys.modules["IPython"].get_ipython(), "kernel", None
-    ) is not None
-    isatty = getattr(sys.stderr, "isatty", lambda: False)()
-    if not (in_kernel or isatty):
-        return None
-    from tqdm import tqdm  # the text bar also renders in notebooks (no ipywidgets needed)
-
-    return tqdm(total=total, desc="monte carlo", unit="chunk", file=sys.stderr)
+    """A tqdm bar over chunks (the policy of ``_core/progress.py``: after 2 s, on a
+    terminal or in Jupyter, never with ``progress=False``)."""
+    return make_bar(enabled, total=total, desc="monte carlo", unit="chunk", live=True)
 
 
 def _global_array(host, sharding):
@@ -312,7 +303,8 @@ def monte_carlo(
     - `chunk_size`: realisations per device per chunk (default ``max(16, 2**18 // N)``), the
       memory bound; a chunk runs ``chunk_size * n_devices`` realisations at once (at
       least 2 per device; the last chunk is padded).
-    - `progress`: tqdm bar over chunks (only on a terminal or in a notebook).
+    - `progress`: tqdm bar over chunks once the study has run for more than 2 s, on a
+      terminal or in a notebook; ``False`` silences it, a dict passes options to tqdm.
     - `devices`: devices to shard realisations over (default: all, ``jax.devices()``).
       Results are bitwise identical for any number of devices.
     - `keep_estimates`: keep the raw estimates in ``Study.estimates``.
@@ -321,6 +313,8 @@ def monte_carlo(
     excluded from the statistics and counted; they never abort the study.
     """
     require_x64("monte_carlo")
+    ensure_compilation_cache()
+    check_progress(progress)
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
     if not isinstance(design, GiriDesign):

@@ -1,0 +1,44 @@
+"""Record lengths rounded up to a few compiled sizes ("buckets").
+
+XLA compiles one program per array shape, so every new record length costs a fresh
+compilation (about a second for the simulator, several for refinement). The causal
+computations -- play operator, free run, one-step prediction -- give the same first ``N``
+samples whatever follows them, so an eager call pads its record to the next bucket, runs
+the program compiled for that bucket, and returns the first ``N`` samples. Results are
+unaffected (the same arithmetic on the same samples); only the padded tail is extra work,
+at most 25% (12.5% on average) above :data:`MIN_BUCKET` samples.
+
+Buckets are ``k * 2^e`` with ``k in {4, 5, 6, 7}``: four per octave. Calls under
+``jax.jit`` / ``vmap`` / ``grad`` (traced records) are never padded: the caller's own
+program fixes the shape.
+"""
+
+import jax
+import numpy as np
+
+from .._misc import is_traced
+
+
+#: records up to this length all share one program
+MIN_BUCKET = 256
+
+
+def bucket_length(n: int) -> int:
+    """The smallest bucket holding ``n`` samples."""
+    if n <= MIN_BUCKET:
+        return MIN_BUCKET
+    e = (n - 1).bit_length() - 3  # 2^(e+2) < n <= 2^(e+3)
+    step = 1 << e
+    return -(-n // step) * step
+
+
+def should_bucket(*arrays) -> bool:
+    """Pad only concrete 1-D records (an eager call from user code)."""
+    return not any(is_traced(x) for x in arrays)
+
+
+def pad(x, length: int) -> jax.Array:
+    """Concrete ``x`` with zeros appended up to ``length`` samples, padded on the host and
+    placed with ``device_put`` (an eager ``jnp`` op would compile once per length)."""
+    x = np.asarray(x)
+    return jax.device_put(np.pad(x, (0, length - x.shape[0])))
