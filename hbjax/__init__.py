@@ -13,6 +13,7 @@ from ._core.params import (
 )
 from ._core.signals import GiriDesign as GiriDesign
 from ._core.simulate import play as play, predict as predict, simulate as simulate
+from ._core.cache import compilation_cache_dir as compilation_cache_dir
 
 # --- refinement (issue 3) ---
 from ._identify.crlb import CRLBResult as CRLBResult, crlb as crlb
