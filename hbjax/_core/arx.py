@@ -6,6 +6,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._misc import as_float_array, is_traced
+from . import display
 
 
 class ARX(eqx.Module):
@@ -51,3 +52,6 @@ class ARX(eqx.Module):
     def static_gain_numerator(self):
         """``B(1)``, nonzero under assumption A5."""
         return jnp.sum(self.b)
+
+    def __repr__(self) -> str:
+        return display.pformat(self)

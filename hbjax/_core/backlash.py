@@ -7,6 +7,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._misc import as_float_array, is_traced
+from . import display
 
 
 def polyval_ascending(c: Float[Array, " m"], v):
@@ -83,3 +84,6 @@ class Backlash(eqx.Module):
         """One sample of the play operator: clamp the last output into the band at v."""
         low, high = self.band(v)
         return jnp.minimum(jnp.maximum(u_prev, low), high)
+
+    def __repr__(self) -> str:
+        return display.pformat(self)

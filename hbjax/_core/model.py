@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from . import display
 from .arx import ARX
 from .backlash import Backlash
 
@@ -28,6 +29,12 @@ class AbstractModel(eqx.Module):
         self, v: Float[Array, " time"], y: Float[Array, " time"], u0
     ) -> Float[Array, " time"]:
         """One-step-ahead prediction of ``y`` from past ``y`` and ``v``."""
+
+    def __repr__(self) -> str:
+        return display.pformat(self)
+
+    def _repr_html_(self) -> str:
+        return display.model_html(self)
 
 
 def play_trajectory(backlash: Backlash, v: Float[Array, " time"], u0) -> Float[Array, " time"]:

@@ -27,9 +27,11 @@ import numpy as np
 from . import candidates as cands
 from . import effects as fx
 from . import residual_tests as rt
+from .._core import display
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._core.progress import check_progress, progress_bar
+from .._identify.recordings import as_input_output
 from .._misc import as_float_array, check_finite, same_length
 from .solve import evaluate_batch, fit_batch, jacobian, sse_batch
 from .effects import EFFECTS, base_theta
@@ -86,12 +88,15 @@ class Diagnosis:
     nominal: Hammerstein = dataclasses.field(repr=False, default=None)
     v: np.ndarray = dataclasses.field(repr=False, default=None)
     y: np.ndarray = dataclasses.field(repr=False, default=None)
+    dt: float | None = dataclasses.field(repr=False, default=None)
 
     @property
     def best(self):
         return self.findings[0] if self.findings else None
 
-    def summary(self) -> str:
+    def summary(self) -> display.Summary:
+        """The residual tests and the findings with their held-out fits: a text that
+        renders as HTML tables in Jupyter."""
         lines = [f"Mismatch diagnosis: {self.n_fit} samples fitted, {self.n_holdout} held out."]
         w = self.residual_tests["whiteness"]
         ind = self.residual_tests["independence"]
@@ -104,6 +109,7 @@ class Diagnosis:
         elif not self.findings:
             lines.append("No significant structured mismatch: the recording is consistent with "
                          "the nominal model up to white equation error.")
+        head = list(lines)
         for i, f in enumerate(self.findings, 1):
             lines.append(f"{i}. {f.effect}: {f.physics}")
             lines.append(f"   where: {_short(f.where)}")
@@ -114,7 +120,19 @@ class Diagnosis:
                          f"DM z {_num(f.evidence.get('dm_z'), '.1f')})")
             if "variant" in f.evidence:
                 lines.append(f"   ({f.evidence['variant']})")
-        return "\n".join(lines)
+        tables = [display.findings_table(self.findings)] if self.findings else []
+        notes = head[1:] + [f"{i}. {f.effect}: {f.physics}" for i, f in enumerate(self.findings, 1)]
+        html = display.report(head[0], tables=tables, notes=notes)._repr_html_()
+        return display.Summary("\n".join(lines), html)
+
+    def __repr__(self) -> str:
+        best = self.best.effect if self.best else None
+        return (f"Diagnosis(mismatch={self.mismatch}, best={best!r}, findings="
+                f"{[f.effect for f in self.findings]}, n_fit={self.n_fit}, "
+                f"n_holdout={self.n_holdout})")
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
     def to_dict(self) -> dict:
         return _jsonable({
@@ -222,14 +240,16 @@ def change_scan(J, e, burn, grid=100):
             "p_value": rt.chi2_sf(float(stats[k]), p), "grid": len(taus)}
 
 
-def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, key=None,
+def diagnose(model: Hammerstein, v, y=None, *, holdout: float = 0.3, effects=None, key=None,
              criterion: str = "prediction", progress=True):
     """Locate, name and model what the nominal ``model`` leaves out of a recording.
 
     **Arguments:**
 
     - `model`: the nominal :class:`hbjax.Hammerstein` (what the user believes).
-    - `v`, `y`: a recording of the real system (input, output), equal lengths.
+    - `v`, `y`: a recording of the real system (input, output), equal lengths; or one
+      :class:`hbjax.Recording` or two-column DataFrame as `v` (then `y` is omitted, and
+      the diagnosis figure's time axis is in seconds when the recording's ``dt`` is known).
     - `holdout`: the last fraction of the record, never used for fitting; every fit figure
       is measured on it.
     - `effects`: names from :data:`hbjax.EFFECTS` to consider (default all);
@@ -250,8 +270,10 @@ def diagnose(model: Hammerstein, v, y, *, holdout: float = 0.3, effects=None, ke
     require_x64("diagnose")
     ensure_compilation_cache()
     check_progress(progress)
+    v, y, dt = as_input_output(v, y)
     with progress_bar(progress, total=4, desc="diagnose", unit="stage", live=True) as bar:
-        return _diagnose(model, v, y, holdout, effects, key, criterion, bar)
+        found = _diagnose(model, v, y, holdout, effects, key, criterion, bar)
+    return dataclasses.replace(found, dt=dt)
 
 
 def _diagnose(model, v, y, holdout, effects, key, criterion, bar):

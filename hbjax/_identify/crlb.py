@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._core import display
 from .._misc import is_traced, positive_float
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
@@ -37,6 +38,25 @@ class CRLBResult(eqx.Module):
     def std(self) -> Float[Array, " p"]:
         """Lower bound on the standard deviation of each normalised parameter."""
         return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance), 0.0))
+
+    def summary(self, names=None) -> display.Summary:
+        """The bound on each parameter's standard deviation and its Fisher information;
+        `names` defaults to ``theta1, theta2, ...`` (pass :func:`hbjax.param_names`)."""
+        std = display.std_from_covariance(self.covariance)
+        p = self.covariance.shape[-1]
+        names = [f"theta{k + 1}" for k in range(p)] if names is None else list(names)
+        fisher = display.concrete(self.fisher)
+        diag = None if fisher is None else np.diagonal(fisher, axis1=-2, axis2=-1)
+        table = display.parameter_table(names, std, header="std bound",
+                                        extra={"Fisher information": diag})
+        return display.report("Cramér-Rao lower bound", figures={"gauge": self.gauge},
+                              tables=[table])
+
+    def __repr__(self) -> str:
+        return display.pformat(self)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
 
 def crlb_traceable(model: Hammerstein, recordings, *, noise_std, criterion="prediction",

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._core.cache import ensure_compilation_cache
@@ -62,6 +63,19 @@ class FitResult(eqx.Module):
     @property
     def std(self):
         return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance), 0.0))
+
+    def summary(self) -> display.Summary:
+        """Estimates, standard errors, 95% intervals, the spread of the local optima over
+        the starts, unidentified flags, fit figures and the result message."""
+        return display.estimation_summary(self, "Multi-start identification",
+                                          covariance=self.covariance,
+                                          extra={"start spread": self.spread})
+
+    def __repr__(self) -> str:
+        return display.pformat(self)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
 
 def random_backlash(key, m: int, scale) -> Backlash:

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import as_float_array, check_finite, is_traced
@@ -79,6 +80,17 @@ class GiriResult(eqx.Module):
     @property
     def message(self) -> str:
         return RESULT_MESSAGES[int(self.result)]
+
+    def summary(self) -> display.Summary:
+        """The normalised estimates, the design checks (gap, condition numbers) and the
+        result message; a text table that renders as HTML in Jupyter."""
+        return display.estimation_summary(self, "Closed-form identification (Giri et al.)")
+
+    def __repr__(self) -> str:
+        return display.pformat(self)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
 
 def normalise(model: Hammerstein, h_m) -> Hammerstein:

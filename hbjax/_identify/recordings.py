@@ -13,18 +13,53 @@ def _is_pair(x) -> bool:
     return isinstance(x, (tuple, list)) and len(x) == 2 and not isinstance(x[0], (tuple, list))
 
 
+def _is_frame(x) -> bool:
+    # duck-typed: pandas stays optional and is never imported here
+    return type(x).__name__ == "DataFrame" and hasattr(x, "iloc") and hasattr(x, "columns")
+
+
+def recording_arrays(x):
+    """``(v, y)`` of one recording given as an :class:`hbjax.Recording` (anything with
+    ``.v`` and ``.y``) or a pandas ``DataFrame`` of two columns (input first, output
+    second, e.g. ``df[["uEst", "yEst"]]``); ``None`` for anything else."""
+    if _is_frame(x):
+        if x.shape[1] != 2:
+            raise ValueError(
+                "a DataFrame given as a recording must have 2 columns, input then output; got "
+                f"{list(x.columns)}: select them, e.g. df[['u', 'y']], or use "
+                "hbjax.Recording.from_dataframe."
+            )
+        return x.iloc[:, 0].to_numpy(np.float64), x.iloc[:, 1].to_numpy(np.float64)
+    if hasattr(x, "v") and hasattr(x, "y") and not isinstance(x, (tuple, list)):
+        return x.v, x.y
+    return None
+
+
+def as_input_output(v, y=None):
+    """``(v, y, dt)`` from input and output arrays, or from one recording (a
+    :class:`hbjax.Recording` or a two-column DataFrame) given as `v` with `y` omitted;
+    ``dt`` is the recording's sampling period (``None`` when unknown)."""
+    if y is not None:
+        return v, y, None
+    pair = recording_arrays(v)
+    if pair is None:
+        raise TypeError("`y` is missing: pass `v` and `y`, or an hbjax.Recording or a "
+                        "two-column pandas DataFrame (input, output) as `v`.")
+    return pair[0], pair[1], getattr(v, "dt", None)
+
+
 def as_recordings(recordings, name: str = "recordings"):
-    """One ``(v, y)`` pair, an object with ``.v`` and ``.y``, or a list of those -> a tuple
+    """One ``(v, y)`` pair, a recording (:func:`recording_arrays`), or a list of those -> a tuple
     of ``(v, y)`` float64 pairs, each finite, 1-D, of equal lengths within the pair."""
-    if hasattr(recordings, "v") and hasattr(recordings, "y"):
-        items = [(recordings.v, recordings.y)]
+    single = recording_arrays(recordings)
+    if single is not None:
+        items = [single]
     elif _is_pair(recordings):
         items = [tuple(recordings)]
     elif isinstance(recordings, (tuple, list)) and len(recordings) > 0:
         items = []
         for k, rec in enumerate(recordings):
-            if hasattr(rec, "v") and hasattr(rec, "y"):
-                rec = (rec.v, rec.y)
+            rec = recording_arrays(rec) or rec
             if not _is_pair(rec):
                 raise TypeError(
                     f"`{name}[{k}]` must be a (v, y) pair of 1-D arrays, got "

@@ -14,6 +14,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
+from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import is_traced, positive_float, positive_int
@@ -80,6 +81,17 @@ class RefineResult(eqx.Module):
     def std(self) -> Float[Array, " p"]:
         """Standard errors (square roots of the covariance diagonal)."""
         return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance, axis1=-2, axis2=-1), 0.0))
+
+    def summary(self) -> display.Summary:
+        """Estimates, standard errors, 95% intervals, unidentified flags, fit figures and the
+        result message; a text table that renders as HTML in Jupyter."""
+        return display.estimation_summary(self, "Refinement", covariance=self.covariance)
+
+    def __repr__(self) -> str:
+        return display.pformat(self)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
 
 def gauge_transform(model: Hammerstein, par: Parametrisation):

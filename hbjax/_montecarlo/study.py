@@ -4,6 +4,7 @@ normalised parameter estimates, and the log-log RMSE slope that checks consisten
 import equinox as eqx
 import numpy as np
 
+from .._core import display
 from .._identify.giri import RESULT_MESSAGES
 
 
@@ -167,3 +168,39 @@ class Study(eqx.Module):
         from .._plot.monte_carlo import plot_monte_carlo  # matplotlib only when plotting
 
         return plot_monte_carlo(self, **kwargs)
+
+    def summary(self) -> display.Summary:
+        """Per parameter: the true value, the mean estimate with its Monte Carlo standard
+        error and 95% interval, bias, std and RMSE at the longest record, and the log-log
+        RMSE slope with its 95% interval; then valid realisations and failures."""
+        i = int(np.argmax(self.lengths))
+        n = max(int(self.n_valid[i]), 1)
+        num = display.format_number
+        rows = []
+        for p, name in enumerate(self.names):
+            se = self.std[i, p] / np.sqrt(n)
+            lo, hi = self.mean[i, p] - display.Z95 * se, self.mean[i, p] + display.Z95 * se
+            rows.append([name, num(self.true[p]), num(self.mean[i, p]), num(se),
+                         f"[{num(lo)}, {num(hi)}]", num(self.bias[i, p]), num(self.std[i, p]),
+                         num(self.rmse[i, p]), f"{self.slope[p]:+.3f}",
+                         f"[{self.slope_ci[p, 0]:+.3f}, {self.slope_ci[p, 1]:+.3f}]"])
+        table = display.Table(
+            ["parameter", "true", "mean", "std err", "95% interval", "bias", "std", "rmse",
+             "slope", "slope 95%"], rows, f"at N = {int(self.lengths[i])} (slope over all N; "
+            "-0.5 = sqrt(N) consistency)")
+        figures = {
+            "estimator": self.estimator, "noise": f"{self.noise}, std {self.noise_std:g}",
+            "record lengths N": self.lengths,
+            "valid realisations": f"{self.n_valid.tolist()} of {self.realisations}",
+            "devices": self.n_devices,
+        }
+        notes = [f"failed ({msg}): {counts.tolist()}"
+                 for msg, counts in self.failure_counts().items()]
+        return display.report("Monte Carlo study", figures=figures, tables=[table], notes=notes)
+
+    def __repr__(self) -> str:
+        return display.pformat(self, skip=("estimates", "codes", "compile_seconds",
+                                           "run_seconds", "slope_stderr"))
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
