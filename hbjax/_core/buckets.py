@@ -9,8 +9,8 @@ unaffected (the same arithmetic on the same samples); only the padded tail is ex
 at most 25% (12.5% on average) above :data:`MIN_BUCKET` samples.
 
 Buckets are ``k * 2^e`` with ``k in {4, 5, 6, 7}``: four per octave. Calls under
-``jax.jit`` / ``vmap`` / ``grad`` (traced records) are never padded: the caller's own
-program fixes the shape.
+``jax.jit`` / ``vmap`` / ``grad`` (a traced record, model or state) are never padded: the
+caller's own program fixes the shape.
 """
 
 import jax
@@ -32,9 +32,10 @@ def bucket_length(n: int) -> int:
     return -(-n // step) * step
 
 
-def should_bucket(*arrays) -> bool:
-    """Pad only concrete 1-D records (an eager call from user code)."""
-    return not any(is_traced(x) for x in arrays)
+def should_bucket(*trees) -> bool:
+    """Pad only when nothing is traced (an eager call from user code): a traced model,
+    state or record means an enclosing jit/vmap/grad whose program fixes the shapes."""
+    return not any(is_traced(x) for x in jax.tree_util.tree_leaves(trees))
 
 
 def pad(x, length: int) -> jax.Array:

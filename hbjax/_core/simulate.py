@@ -84,7 +84,7 @@ def _causal(fn, model, records, *rest, **kwargs):
     """``fn(model, *records, *rest)``; an eager call runs on records padded to their
     length's bucket (``buckets.py``: one compiled program for many lengths) and returns the
     first ``N`` samples, which the padding cannot change (the recursions are causal)."""
-    if not should_bucket(*records):
+    if not should_bucket(model, records, rest):
         return fn(model, *records, *rest, **kwargs)
     n = records[0].shape[0]
     size = bucket_length(n)
