@@ -4,6 +4,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .._core.simulate import play
+from .recording import time_axis
 
 
 def _axes(ax):
@@ -54,15 +55,17 @@ def plot_staircase(design, backlash, *, periods=2, axes=None):
     return axes
 
 
-def plot_output(y_measured, y_simulated, *, ax=None, labels=("measured", "simulated"), window=None):
-    """Measured vs simulated output (optionally only ``window = (start, stop)``)."""
+def plot_output(y_measured, y_simulated, *, ax=None, labels=("measured", "simulated"), window=None,
+                dt=None):
+    """Measured vs simulated output (optionally only the samples ``window = (start, stop)``),
+    against time in seconds when the sampling period `dt` is given, else sample numbers."""
     ax = _axes(ax)
     y_measured, y_simulated = np.asarray(y_measured), np.asarray(y_simulated)
     start, stop = window if window is not None else (0, len(y_measured))
-    t = np.arange(start, stop)
-    ax.plot(t, y_measured[start:stop], lw=1, label=labels[0])
-    ax.plot(t, y_simulated[start:stop], lw=1, ls="--", label=labels[1])
-    ax.set_xlabel("t")
+    t, label = time_axis(len(y_measured), dt)
+    ax.plot(t[start:stop], y_measured[start:stop], lw=1, label=labels[0])
+    ax.plot(t[start:stop], y_simulated[start:stop], lw=1, ls="--", label=labels[1])
+    ax.set_xlabel(label)
     ax.set_ylabel("y")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)

@@ -4,6 +4,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .._core.simulate import play, simulate
+from .recording import time_axis
 
 _REGIME = {
     "output_saturation": "simulated output",
@@ -45,19 +46,24 @@ def plot_diagnosis(d, *, finding=None, axes=None):
     y_nom = np.asarray(simulate(d.nominal, v))
     u = np.asarray(play(d.nominal.backlash, v))
     res = y - y_nom
-    t = np.arange(len(y))
+    dt = getattr(d, "dt", None)
+    t, t_label = time_axis(len(y), dt)
+    step = 1.0 if dt is None else dt
     ax = axes[0]
     ax.plot(t, res, lw=0.7, color="C0", label="nominal simulation residual")
-    ax.axvspan(d.n_fit, len(y), color="0.85", zorder=0, label="held out")
+    ax.axvspan(d.n_fit * step, len(y) * step, color="0.85", zorder=0, label="held out")
     if f is not None:
         for i, (a, b) in enumerate(f.where.get("windows", [])):
-            ax.axvspan(a, b, color="C3", alpha=0.2, label="located" if i == 0 else None)
-    ax.set_xlabel("sample")
+            ax.axvspan(a * step, b * step, color="C3", alpha=0.2,
+                       label="located" if i == 0 else None)
+    ax.set_xlabel(t_label)
     ax.set_ylabel("y - y_sim")
     ax.set_title(f"diagnosis: {f.effect if f else 'no finding'}")
     ax.legend(fontsize=8, loc="upper left")
     ax = axes[1]
     x, label = _regime(f.effect if f else None, v, y_nom, u)
+    if label == "time (samples)":
+        x, label = t, t_label
     ax.plot(x, res, ".", ms=2, alpha=0.5)
     ax.set_xlabel(label)
     ax.set_ylabel("y - y_sim")
@@ -71,7 +77,7 @@ def plot_diagnosis(d, *, finding=None, axes=None):
         y_new = np.asarray(simulate(f.model, v))
         ax.plot(th, y_new[d.n_fit:], color="C3", lw=1,
                 label=f"with {f.effect} ({f.fit_after:.1f}% {f.metric})")
-    ax.set_xlabel("sample (held out)")
+    ax.set_xlabel(f"{t_label} (held out)")
     ax.set_ylabel("y")
     ax.legend(fontsize=8)
     return axes
