@@ -18,6 +18,7 @@ import collections
 import inspect
 import json
 import os
+import re
 import sys
 import time
 
@@ -122,7 +123,7 @@ def _confusion(records, effects):
     """Rows: concealed effect; columns: reported top finding (abbreviated, legend below)."""
     truth_rows = list(effects) + [None]
     reported = sorted({r.get("top") for r in records if "error" not in r} - {None},
-                      key=lambda x: (x not in effects, x))
+                      key=lambda x: (list(effects).index(x) if x in effects else len(effects), x))
     cols = reported + [None, "ERROR"]
     abbr = {c: f"{j:>2d}" for j, c in enumerate(cols)}
     counts = collections.Counter(
@@ -139,6 +140,23 @@ def _confusion(records, effects):
     return "\n".join(out)
 
 
+def _records_from_log(path):
+    """Per-case records from the ``[k/N] effect -> top ...`` lines of a run's output."""
+    pattern = re.compile(r"^\[\d+/\d+\] (\S+)\s+-> (\S+)\s")
+    records = []
+    for line in open(path):
+        m = pattern.match(line)
+        if m:
+            effect, top = (None if x == "None" else x for x in m.groups())
+            rec = dict(effect=effect, index=len(records))
+            if top == "ERROR":
+                rec["error"] = "diagnose (see log)"
+            else:
+                rec.update(top=top, findings=[top] if top else [])
+            records.append(rec)
+    return records
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--per-effect", type=int, default=3, help="cases per effect")
@@ -152,6 +170,9 @@ def main(argv=None):
                         "separate clean recording")
     p.add_argument("--n", type=int, default=None, help="fix the record length")
     p.add_argument("--json", default=None, help="write per-case records and the summary here")
+    p.add_argument("--summarise-log", default=None, metavar="FILE",
+                   help="no run: rebuild the summary from the per-case lines a (possibly "
+                        "interrupted) run printed to FILE")
     args = p.parse_args(argv)
     if args.effects == "all":
         effects = list(ALL_EFFECTS)
@@ -159,6 +180,11 @@ def main(argv=None):
         effects = [e for e in ALL_EFFECTS if e in hbjax.EFFECTS]
     else:
         effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+    if args.summarise_log:
+        records = _records_from_log(args.summarise_log)
+        print(f"summary of the {len(records)} cases logged in {args.summarise_log}")
+        print(report(records, [e for e in effects if any(r["effect"] == e for r in records)]))
+        return
     t0 = time.perf_counter()
     records = run(effects, args.per_effect, args.clean, args.seed, args.nominal, args.n)
     text = report(records, effects)

@@ -129,15 +129,20 @@ def _diagnose(case):
 @pytest.mark.xfail(strict=False, reason="accuracy target on independent data not yet met "
                    "(benchmarks/diagnose_suite_baseline.txt)")
 def test_diagnosis_accuracy_on_independent_cases():
+    # A small sample: one case per effect, three clean ones, two base structures and one
+    # record length (so that compiled solvers are shared); benchmarks/diagnose_suite.py runs
+    # the full variety.
     rng = np.random.default_rng(2024)
+    structures = [dict(na=2, nb=2, m=3), dict(na=3, nb=2, m=2)]
+
+    def case(effect, i):
+        return concealed_case(rng, effect, n=1500, base=random_base(rng, **structures[i % 2]))
+
     tops = collections.defaultdict(list)
-    for effect in ALL_EFFECTS:
-        for _ in range(2):
-            c = concealed_case(rng, effect, n=1500)
-            d = _diagnose(c)
-            tops[effect].append(d.best.effect if d.best is not None else None)
-    clean_findings = [len(_diagnose(concealed_case(rng, None, n=1500)).findings)
-                      for _ in range(3)]
+    for i, effect in enumerate(ALL_EFFECTS):
+        d = _diagnose(case(effect, i))
+        tops[effect].append(d.best.effect if d.best is not None else None)
+    clean_findings = [len(_diagnose(case(None, i)).findings) for i in range(3)]
     hits = {e: sum(t == e for t in ts) / len(ts) for e, ts in tops.items()}
     overall = np.mean([t == e for e, ts in tops.items() for t in ts])
     assert overall >= 0.95, (overall, dict(tops))
