@@ -4,8 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 BASE_STAMP := $(VENV)/.installed-base
 TEST_STAMP := $(VENV)/.installed-test
+DOCS_STAMP := $(VENV)/.installed-docs
 
-.PHONY: demo test test-fast bench install clean
+.PHONY: demo test test-fast bench docs install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -17,6 +18,10 @@ $(BASE_STAMP): pyproject.toml | $(BIN)/python
 
 $(TEST_STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $(BASE_STAMP) $@
+
+$(DOCS_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[docs]"
 	touch $(BASE_STAMP) $@
 
 install: $(BASE_STAMP)
@@ -36,5 +41,9 @@ bench: $(TEST_STAMP)
 	cd benchmarks && ../$(BIN)/python monte_carlo.py
 	cd benchmarks && ../$(BIN)/python diagnose.py
 
+# The documentation site (mkdocs.yml): guides from docs/, API pages from the docstrings.
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf $(VENV) demo_output
+	rm -rf $(VENV) demo_output site

@@ -6,30 +6,30 @@ this hook turns them into optional autorefs to the public name (``hbjax.simulate
 ``hbjax.datasets.brfd``, ...): a link where the name is documented, plain code elsewhere.
 """
 
+import functools
+import importlib
+import pkgutil
 import re
 
 _ROLE = re.compile(r":(?:func|class|meth|attr|mod|data|obj|exc):<code>~?([^<]+?)(?:\(\))?</code>")
-_SCOPES = ("hbjax.", "hbjax.datasets.", "hbjax.plot.")
+
+
+@functools.cache
+def _scopes() -> tuple:
+    """``hbjax`` and its public submodules (``hbjax.datasets``, ``hbjax.plot``, ...)."""
+    hbjax = importlib.import_module("hbjax")
+    names = [m.name for m in pkgutil.iter_modules(hbjax.__path__) if not m.name.startswith("_")]
+    return (hbjax,) + tuple(importlib.import_module(f"hbjax.{name}") for name in names)
 
 
 def _identifier(name: str) -> str:
     if name.startswith("hbjax."):
         return name
     head = name.split(".")[0]
-    for scope in _SCOPES:
-        module = _public_module(scope)
-        if module is not None and hasattr(module, head):
-            return scope + name
-    return "hbjax." + name
-
-
-def _public_module(scope: str):
-    import importlib
-
-    try:
-        return importlib.import_module(scope.rstrip("."))
-    except ImportError:
-        return None
+    for module in _scopes():
+        if hasattr(module, head) and not isinstance(getattr(module, head), type(module)):
+            return f"{module.__name__}.{name}"
+    return f"hbjax.{name}"
 
 
 def _link(match: re.Match) -> str:
