@@ -24,6 +24,7 @@ from ._identify.separable import separable_ls as separable_ls
 from ._core.initial import InitialState as InitialState, estimate_initial_state as estimate_initial_state
 from ._identify.compare import Comparison as Comparison, compare as compare
 from ._identify.residual_analysis import ResidualAnalysis as ResidualAnalysis, resid as resid
+from ._identify.structure import StructureSelection as StructureSelection, select_structure as select_structure
 # --- monte carlo (issue 4) ---
 from ._montecarlo.run import Study as Study, monte_carlo as monte_carlo
 # --- diagnosis (issue 5) ---

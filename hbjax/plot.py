@@ -15,3 +15,5 @@ from ._plot.monte_carlo import plot_monte_carlo as plot_monte_carlo
 # --- diagnosis plots (issue 5) ---
 from ._plot.diagnosis import plot_diagnosis as plot_diagnosis
 from ._plot.recording import plot_recording as plot_recording
+# --- validation plots ---
+from ._plot.validation import plot_compare as plot_compare, plot_resid as plot_resid

@@ -1,0 +1,168 @@
+"""Structure selection: the orders ``(na, nb, m)`` by information criteria and validation
+fit, one :func:`hbjax.fit` per candidate (as MATLAB's ``arxstruc``/``selstruc``)."""
+
+import inspect
+import itertools
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from .._core.model import Hammerstein
+from .._core.simulate import predict, simulate
+from .._misc import positive_int
+from .compare import compare
+from .fit import fit
+from .recordings import as_recordings, check_criterion
+
+RANKINGS = ("bic", "aic", "validation")
+
+
+class StructureSelection(eqx.Module):
+    """What :func:`select_structure` found: one row per candidate structure, best first.
+
+    - `orders`: ``(na, nb, m)`` per row.
+    - `params`: free parameters ``na + nb + 2m - 1`` (after the static-gain normalisation).
+    - `loss`: mean squared criterion residual on the estimation records.
+    - `bic`, `aic`: ``N ln(loss) + k ln N`` and ``N ln(loss) + 2k`` (``N`` samples).
+    - `validation_fit`: mean free-run fit (%) on the validation records, initial state
+      estimated (``nan`` without validation records).
+    - `success`: whether :func:`hbjax.fit` converged; failed rows are ranked last.
+    - `models`: the fitted models; `messages`: their result messages.
+    - `best`: the first row's ``(na, nb, m)``; `rank_by`: the ranking column.
+    """
+
+    orders: tuple
+    params: np.ndarray
+    loss: np.ndarray
+    bic: np.ndarray
+    aic: np.ndarray
+    validation_fit: np.ndarray
+    success: np.ndarray
+    models: tuple
+    messages: tuple = eqx.field(static=True)
+    rank_by: str = eqx.field(static=True)
+    criterion: str = eqx.field(static=True)
+
+    @property
+    def best(self) -> tuple:
+        return self.orders[0]
+
+    @property
+    def best_model(self) -> Hammerstein:
+        return self.models[0]
+
+    def summary(self) -> str:
+        lines = [f"select_structure: {len(self.orders)} structures, {self.criterion} criterion, "
+                 f"ranked by {self.rank_by}; best (na, nb, m) = {self.best}",
+                 f"{'na':>3}{'nb':>4}{'m':>3}{'k':>4}{'loss':>12}{'BIC':>12}{'AIC':>12}"
+                 f"{'val. fit %':>12}  result"]
+        for (na, nb, m), k, loss, bic, aic, vf, msg in zip(
+                self.orders, self.params, self.loss, self.bic, self.aic,
+                self.validation_fit, self.messages):
+            lines.append(f"{na:>3}{nb:>4}{m:>3}{k:>4}{loss:>12.4g}{bic:>12.1f}{aic:>12.1f}"
+                         f"{vf:>12.2f}  {msg}")
+        return "\n".join(lines)
+
+    def __repr__(self):
+        return (f"StructureSelection(best={self.best}, rank_by={self.rank_by!r}, "
+                f"{len(self.orders)} structures)")
+
+
+def _orders(x, name: str, minimum: int) -> tuple:
+    """An order, a range or a sequence of orders -> a non-empty tuple of ints."""
+    if isinstance(x, (int, np.integer)) and not isinstance(x, bool):
+        values = (x,)
+    elif isinstance(x, (range, list, tuple, np.ndarray)):
+        values = tuple(np.asarray(x).ravel().tolist()) if isinstance(x, np.ndarray) else tuple(x)
+    else:
+        raise TypeError(f"`{name}` must be an integer, a range or a sequence of integers, "
+                        f"got {x!r}.")
+    if not values:
+        raise ValueError(f"`{name}` is empty: give at least one order to try.")
+    return tuple(sorted({positive_int(v, name, minimum=minimum) for v in values}))
+
+
+def _loss(model, recordings, criterion):
+    """Mean squared prediction (or simulation) error over all estimation records."""
+    total, count = 0.0, 0
+    for v, y in recordings:
+        y_hat = predict(model, v, y) if criterion == "prediction" else simulate(model, v)
+        total += float(jnp.sum((y - y_hat) ** 2))
+        count += int(y.shape[0])
+    return total / count, count
+
+
+def _validation_fit(model, validation):
+    try:
+        return float(np.mean([compare(model, v, y).fit for v, y in validation]))
+    except ValueError:  # an unstable model's free run overflows
+        return -np.inf
+
+
+def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction",
+                     validation=None, rank_by=None, starts: int = 32,
+                     progress: bool = True) -> StructureSelection:
+    """Select the orders ``(na, nb, m)`` of an HB-Hammerstein model from recordings.
+
+    Every combination of the candidate orders is identified by :func:`hbjax.fit` (same
+    `key` for all, so the structures are compared on common random starts) and scored by
+    its loss (mean squared one-step prediction error, or simulation error with
+    ``criterion="simulation"``) on the estimation records, BIC ``N ln(loss) + k ln N``,
+    AIC ``N ln(loss) + 2k`` (``k = na + nb + 2m - 1`` free parameters after the
+    normalisation ``B(1) = 1``) and, with `validation` records, the free-run fit (%) on
+    them with the initial state estimated (:func:`hbjax.compare`).
+
+    **Arguments:**
+
+    - `recordings`: estimation records, as for :func:`hbjax.fit`.
+    - `na`, `nb`, `m`: candidate orders, each an integer, a ``range`` or a sequence.
+    - `key`: a JAX PRNG key.
+    - `criterion`: ``"prediction"`` or ``"simulation"`` (passed to :func:`hbjax.fit`).
+    - `validation`: records not used for estimation, or ``None``.
+    - `rank_by`: ``"bic"`` (default), ``"aic"`` or ``"validation"`` (highest validation
+      fit first; needs `validation`). BIC is consistent (it picks the true orders as the
+      data grow); the validation fit rarely separates the true orders from larger ones.
+    - `starts`: starts per :func:`hbjax.fit`.
+    - `progress`: show a progress bar over the structures (``False`` silences it).
+
+    **Returns:** a :class:`StructureSelection` table, best first, with ``.best`` the
+    selected ``(na, nb, m)``.
+    """
+    check_criterion(criterion)
+    na_list = _orders(na, "na", 0)
+    nb_list = _orders(nb, "nb", 1)
+    m_list = _orders(m, "m", 1)
+    recs = as_recordings(recordings, "recordings")
+    val = None if validation is None else as_recordings(validation, "validation")
+    rank_by = "bic" if rank_by is None else rank_by
+    if rank_by not in RANKINGS:
+        raise ValueError(f"`rank_by` must be one of {RANKINGS}, got {rank_by!r}.")
+    if rank_by == "validation" and val is None:
+        raise ValueError("`rank_by='validation'` needs `validation` records.")
+    fit_kw = {"progress": False} if "progress" in inspect.signature(fit).parameters else {}
+    grid = list(itertools.product(na_list, nb_list, m_list))
+    rows = []
+    for a, b, c in tqdm(grid, desc="structures", disable=not progress, leave=False):
+        res = fit(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
+                  throw=False, **fit_kw)
+        ok = res.message == "success"
+        loss, n = _loss(res.model, recs, criterion) if ok else (np.inf, 1)
+        k = a + b + 2 * c - 1
+        log_loss = math.log(loss) if 0 < loss < np.inf else (np.inf if loss else -np.inf)
+        vfit = _validation_fit(res.model, val) if (ok and val is not None) else np.nan
+        rows.append(((a, b, c), k, loss, n * log_loss + k * math.log(n),
+                     n * log_loss + 2 * k, vfit, ok, res.model, res.message))
+    column = {"bic": 3, "aic": 4}
+    if rank_by == "validation":
+        order = sorted(range(len(rows)), key=lambda i: (not rows[i][6], -rows[i][5], rows[i][3]))
+    else:
+        order = sorted(range(len(rows)), key=lambda i: (not rows[i][6], rows[i][column[rank_by]]))
+    rows = [rows[i] for i in order]
+    cols = list(zip(*rows))
+    return StructureSelection(
+        tuple(cols[0]), np.asarray(cols[1]), np.asarray(cols[2]), np.asarray(cols[3]),
+        np.asarray(cols[4]), np.asarray(cols[5], float), np.asarray(cols[6]), tuple(cols[7]),
+        tuple(cols[8]), rank_by, criterion)

@@ -1,0 +1,86 @@
+"""Validation figures: measured vs model outputs (``compare``) and residual correlations
+with their 99% bands (``resid``)."""
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from .._identify.compare import Comparison, compare
+from .._identify.residual_analysis import ResidualAnalysis, resid
+
+
+def _time_axis(n, dt):
+    t = np.arange(n)
+    return (t * dt, "time (s)") if dt else (t, "sample")
+
+
+def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwargs):
+    """Measured output and each model's output, fit (%) in the legend, as MATLAB's
+    ``compare`` figure.
+
+    **Arguments:**
+
+    - `result`: a :class:`hbjax.Comparison`, or a model (or list of models) to compare on
+      `v`, `y` (or an :class:`hbjax.Recording` as `v`) with ``compare_kwargs``
+      (``initial_state``, ``horizon``, ``names``).
+    - `ax`: matplotlib axes (a new figure if ``None``).
+    - `window`: ``(start, stop)`` samples to show.
+
+    The time axis is in seconds when the recording's ``dt`` is known.
+
+    **Returns:** the axes.
+    """
+    if not isinstance(result, Comparison):
+        if v is None:
+            raise TypeError("`v` is missing: pass a Comparison, or a model with `v` and `y`.")
+        result = compare(result, v, y, **compare_kwargs)
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3.5))
+    t, label = _time_axis(result.y.shape[0], result.dt)
+    sl = slice(*window) if window is not None else slice(None)
+    ax.plot(t[sl], result.y[sl], color="k", lw=1.2, label="measured")
+    for k, (name, fit) in enumerate(zip(result.names, result.fits)):
+        ax.plot(t[sl], result.y_hats[k][sl], lw=1, color=f"C{k}", label=f"{name}: {fit:.1f}%")
+    mode = "simulated" if result.horizon is None else f"{result.horizon}-step prediction"
+    ax.set_title(f"measured vs {mode} output (initial state: {result.initial_state})")
+    ax.set_xlabel(label)
+    ax.set_ylabel("y")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return ax
+
+
+def plot_resid(result, v=None, y=None, *, axes=None, lags=25):
+    """Residual autocorrelation and cross-correlation with past inputs, each with the 99%
+    band, as MATLAB's ``resid`` figure.
+
+    **Arguments:** `result` (a :class:`hbjax.ResidualAnalysis`, or a model analysed on `v`,
+    `y` with `lags`), `axes` (two matplotlib axes or ``None``).
+
+    **Returns:** the two axes.
+    """
+    if not isinstance(result, ResidualAnalysis):
+        if v is None:
+            raise TypeError("`v` is missing: pass a ResidualAnalysis, or a model with `v` and `y`.")
+        result = resid(result, v, y, lags=lags)
+    if axes is None:
+        _, axes = plt.subplots(2, 1, figsize=(7, 5))
+    k_auto = np.arange(1, result.lags + 1)
+    k_cross = np.arange(0, result.lags + 1)
+    panels = (
+        (axes[0], k_auto, result.autocorrelation,
+         f"residual autocorrelation (Ljung-Box p = {result.p_whiteness:.3g})"),
+        (axes[1], k_cross, result.cross_correlation,
+         f"cross-correlation with past inputs v(t-k) (p = {result.p_independence:.3g})"),
+    )
+    for ax, lag, r, title in panels:
+        outside = np.abs(r) > result.band
+        ax.vlines(lag, 0, r, color="C0")
+        ax.plot(lag[outside], r[outside], "o", color="C3", ms=4)
+        ax.plot(lag[~outside], r[~outside], "o", color="C0", ms=3)
+        ax.axhspan(-result.band, result.band, color="C1", alpha=0.2, label="99% band")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("lag k (samples)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    return axes

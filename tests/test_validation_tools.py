@@ -1,0 +1,217 @@
+"""Initial conditions, compare, resid and structure selection (public API only)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hbjax
+from generators import paper_class as pc
+
+
+def _loop(model, v, *, u0=0.0, y0=None, y=None, horizon=None):
+    """Plain NumPy: free run (``y=None``) or ``horizon``-step prediction from past ``y``;
+    before the record ``y(-i) = y0[i-1]`` and ``u(-j) = u0`` (zeros without ``y0``)."""
+    a, b = np.asarray(model.arx.a), np.asarray(model.arx.b)
+    c1, c2 = np.asarray(model.backlash.c1), np.asarray(model.backlash.c2)
+    u = pc._play(c1, c2, np.asarray(v, float), u0)
+    u_past = 0.0 if y0 is None else u0
+    y0 = np.zeros(len(a)) if y0 is None else np.asarray(y0, float)
+    T = len(v)
+
+    def run(stop, known):  # recursion up to `stop` using measured y before `known`
+        z = {}
+        for t in range(stop + 1):
+            acc = 0.0
+            for i in range(1, len(a) + 1):
+                s = t - i
+                val = y0[-s - 1] if s < 0 else (y[s] if s < known else z[s])
+                acc -= a[i - 1] * val
+            for j in range(1, len(b) + 1):
+                acc += b[j - 1] * (u[t - j] if t - j >= 0 else u_past)
+            z[t] = acc
+        return z
+
+    if horizon is None:
+        z = run(T - 1, 0)
+        return np.array([z[t] for t in range(T)])
+    return np.array([run(t, t - horizon + 1)[t] for t in range(T)])
+
+
+@pytest.fixture(scope="module")
+def system():
+    model = hbjax.default_system()
+    rng = np.random.default_rng(0)
+    v = rng.uniform(-8, 8, 60).repeat(5)
+    return model, v, rng
+
+
+# --------------------------------------------------------------------------- initial state
+
+
+def test_y0_matches_numpy_loop(system):
+    model, v, _ = system
+    y0, u0 = np.array([3.0, -1.0]), 1.5
+    y = np.asarray(hbjax.simulate(model, v, u0=u0, y0=y0))
+    np.testing.assert_allclose(y, _loop(model, v, u0=u0, y0=y0), atol=1e-12)
+    meas = y + 0.1 * np.random.default_rng(1).normal(size=v.shape)
+    np.testing.assert_allclose(hbjax.predict(model, v, meas, u0=u0, y0=y0),
+                               _loop(model, v, u0=u0, y0=y0, y=meas, horizon=1), atol=1e-12)
+    # without y0: the paper's zero initial conditions, unchanged
+    np.testing.assert_allclose(hbjax.simulate(model, v, u0=u0), _loop(model, v, u0=u0),
+                               atol=1e-12)
+
+
+def test_system_at_rest_stays_at_rest():
+    """y0 = B(1) u0 / A(1) with an input inside the band: the output never moves."""
+    model = hbjax.default_system()
+    bl = model.backlash
+    v = np.zeros(50)
+    u0 = 0.5 * float(bl.p1(0.0) + bl.p2(0.0))
+    y_ss = float(jnp.sum(model.arx.b) * u0 / (1 + jnp.sum(model.arx.a)))
+    y = np.asarray(hbjax.simulate(model, v, u0=u0, y0=[y_ss, y_ss]))
+    np.testing.assert_allclose(y, y_ss, rtol=1e-12)
+
+
+def test_y0_jit_vmap_grad_dtype(system):
+    model, v, _ = system
+    f = jax.jit(lambda y0: hbjax.simulate(model, v, u0=1.0, y0=y0))
+    y0s = jnp.array([[1.0, 2.0], [-1.0, 0.5]])
+    batch = jax.vmap(f)(y0s)
+    for k in range(2):
+        np.testing.assert_allclose(batch[k], _loop(model, v, u0=1.0, y0=y0s[k]), atol=1e-11)
+    g = jax.grad(lambda y0: jnp.sum(hbjax.simulate(model, v, u0=1.0, y0=y0)))(y0s[0])
+    eps = 1e-6
+    fd = [(jnp.sum(f(y0s[0].at[i].add(eps))) - jnp.sum(f(y0s[0].at[i].add(-eps)))) / (2 * eps)
+          for i in range(2)]
+    np.testing.assert_allclose(g, fd, rtol=1e-6)
+    m32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), model)
+    y32 = hbjax.simulate(m32, v.astype(np.float32), u0=1.0, y0=np.float32([1, 2]))
+    assert y32.dtype == jnp.float32
+
+
+def test_estimate_initial_state_recovers_truth(system):
+    model, v, _ = system
+    v = np.concatenate([[0.5], v])  # v(0) inside the band: u0 matters
+    y0, u0 = np.array([4.0, 2.5]), 1.2
+    y = np.asarray(hbjax.simulate(model, v, u0=u0, y0=y0))
+    s = hbjax.estimate_initial_state(model, v, y)
+    np.testing.assert_allclose(s.y0, y0, atol=1e-5)
+    assert abs(float(s.u0) - u0) < 1e-5
+    np.testing.assert_allclose(hbjax.simulate(model, v, u0=s.u0, y0=s.y0), y, atol=1e-5)
+
+
+# --------------------------------------------------------------------------- compare
+
+
+def test_compare_fit_horizons_rows(system):
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.shape), u0=1.0,
+                                  y0=[6.0, 5.0]))
+    wrong = hbjax.Hammerstein(model.backlash, hbjax.ARX([-1.1, 0.4], [1.0, 0.5]))
+    res = hbjax.compare([model, wrong], v, y, initial_state="zero")
+    assert res.fit.shape == (2,) and res.y_hat.shape == (2, v.size)
+    y_sim = _loop(model, v)
+    want = 100 * (1 - np.linalg.norm(y - y_sim) / np.linalg.norm(y - y.mean()))
+    assert res.fit[0] == pytest.approx(want, abs=1e-9)
+    assert res.rmse[0] == pytest.approx(np.sqrt(np.mean((y - y_sim) ** 2)), rel=1e-9)
+    assert res.fit[0] > res.fit[1]
+    # the estimated initial state removes the start-up transient of the zero start
+    est = hbjax.compare(model, v, y)
+    assert isinstance(est.fit, float) and est.fit > res.fit[0] + 0.5
+    for k in (1, 3):
+        pred = hbjax.compare(model, v, y, initial_state="zero", horizon=k)
+        np.testing.assert_allclose(pred.y_hat, _loop(model, v, y=y, horizon=k), atol=1e-10)
+    free = hbjax.compare(model, v, y, initial_state="zero", horizon=v.size)
+    np.testing.assert_allclose(free.y_hat, y_sim, atol=1e-10)
+    assert "fit %" in est.summary() and "model 0" in repr(est)
+
+
+def test_compare_recording_and_figures(system, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.shape)))
+    rec = hbjax.Recording(v, y, dt=0.5, name="r")
+    res = hbjax.compare(model, rec, names=["true"])
+    assert res.dt == 0.5 and res.fit > 95
+    ax = hbjax.plot.plot_compare(res)
+    assert ax.get_xlabel() == "time (s)" and ax.lines[1].get_xdata()[-1] == 0.5 * (v.size - 1)
+    axes = hbjax.plot.plot_resid(model, v, y)
+    assert len(axes) == 2 and "Ljung-Box" in axes[0].get_title()
+
+
+# --------------------------------------------------------------------------- resid
+
+
+def test_resid_false_alarm_rate_and_power():
+    """True model: about 1% of lags outside the 99% band and about 1% of p-values below
+    0.01 over 40 seeds; a wrong linear block is rejected every time."""
+    model = hbjax.default_system()
+    wrong = hbjax.Hammerstein(model.backlash, hbjax.ARX([-1.0, 0.35], [1.0, 0.5]))
+    outside, n_lags, alarms, rejected, seeds = 0, 0, 0, 0, 40
+    for seed in range(seeds):
+        rng = np.random.default_rng(100 + seed)
+        v = rng.uniform(-8, 8, 100).repeat(10)
+        y = np.asarray(hbjax.simulate(model, v, 0.3 * rng.normal(size=v.size)))
+        r = hbjax.resid(model, v, y)
+        outside += np.sum(np.abs(r.autocorrelation) > r.band)
+        outside += np.sum(np.abs(r.cross_correlation) > r.band)
+        n_lags += r.autocorrelation.size + r.cross_correlation.size
+        alarms += (r.p_whiteness < 0.01) + (r.p_independence < 0.01)
+        rejected += not hbjax.resid(wrong, v, y).passed
+    assert 0.001 <= outside / n_lags <= 0.03
+    assert alarms / (2 * seeds) <= 0.06  # expected 0.01; binomial 99.9% bound about 0.05
+    assert rejected == seeds
+
+
+# --------------------------------------------------------------------------- structure
+
+
+@pytest.mark.slow
+def test_select_structure_finds_true_orders():
+    """5 random paper-class systems (n = 1, m = 3), 1% noise: BIC picks (1, 1, 3) out of
+    na in {1, 2}, m in {2, 3, 4} for at least 4 of them."""
+    hits = []
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        s = pc.random_paper_system(rng, n=1, m=3)
+        v = pc.random_input(rng, "prbs_levels", 1500, 2 * s["h_m"])
+        y0, _ = pc.simulate_numpy(s, v)
+        y, _ = pc.simulate_numpy(s, v, 0.01 * np.ptp(y0) * rng.normal(size=v.size))
+        sel = hbjax.select_structure((v, y), na=range(1, 3), nb=1, m=[2, 3, 4],
+                                     key=jax.random.PRNGKey(0), starts=8, progress=False)
+        assert len(sel.orders) == 6 and np.all(np.diff(sel.bic[sel.success]) >= 0)
+        hits.append(sel.best == (1, 1, 3))
+    assert sum(hits) >= 4, hits
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_bad_input_names_the_argument(system):
+    model, v, _ = system
+    y = np.asarray(hbjax.simulate(model, v))
+    key = jax.random.PRNGKey(0)
+    with pytest.raises(ValueError, match="`na` is empty"):
+        hbjax.select_structure((v, y), na=[], nb=1, m=2, key=key, progress=False)
+    with pytest.raises(ValueError, match="`m` is empty"):
+        hbjax.select_structure((v, y), na=1, nb=1, m=range(3, 3), key=key, progress=False)
+    with pytest.raises(ValueError, match="records must have equal lengths.*`recordings"):
+        hbjax.select_structure((v, y[:-1]), na=1, nb=1, m=2, key=key, progress=False)
+    with pytest.raises(ValueError, match=r"`validation\[1\]`"):
+        hbjax.select_structure((v, y), na=1, nb=1, m=2, key=key, progress=False,
+                               validation=[(v, y), (v[:5], y)])
+    with pytest.raises(ValueError, match="`initial_state` must be one of"):
+        hbjax.compare(model, v, y, initial_state="estimated")
+    with pytest.raises(ValueError, match="`horizon`"):
+        hbjax.compare(model, v, y, horizon=0)
+    with pytest.raises(ValueError, match="`y0` must hold the na = 2"):
+        hbjax.simulate(model, v, y0=[1.0])
+    with pytest.raises(ValueError, match="`y0` must hold the na = 2"):
+        hbjax.predict(model, v, y, y0=np.zeros(3))
+    with pytest.raises(ValueError, match="equal lengths"):
+        hbjax.compare(model, v, y[:-1])
+    with pytest.raises(ValueError, match="equal lengths"):
+        hbjax.estimate_initial_state(model, v, y[:-1])
