@@ -10,7 +10,12 @@ from .._core.model import Hammerstein
 
 
 def _is_pair(x) -> bool:
-    return isinstance(x, (tuple, list)) and len(x) == 2 and not isinstance(x[0], (tuple, list))
+    return (isinstance(x, (tuple, list)) and len(x) == 2
+            and not isinstance(x[0], (tuple, list)) and not _is_recording(x[0]))
+
+
+def _is_recording(x) -> bool:
+    return _is_frame(x) or (hasattr(x, "v") and hasattr(x, "y"))
 
 
 def _is_frame(x) -> bool:
