@@ -1,11 +1,16 @@
-"""Griffe extension: signatures on the API pages use the public spellings of types.
+"""Griffe extension: the API pages show what the reader can use.
 
-Inspected annotations carry the modules objects are defined in (``hbjax._core.model.Hammerstein``,
-``jax.jaxlib._jax.Array``, ``jaxtyping.Float[...]``); the reader imports ``hbjax.Hammerstein``
-and ``jax.Array``. Each annotation is rewritten to those names.
+- Signatures use the public spellings of types. Inspected annotations carry the modules objects
+  are defined in (``hbjax._core.model.Hammerstein``, ``jax.jaxlib._jax.Array``,
+  ``jaxtyping.Float[...]``); the reader imports ``hbjax.Hammerstein`` and ``jax.Array``.
+- Class attributes whose only "docstring" is that of their value's builtin type (a field
+  defaulting to ``""`` would show the documentation of ``str``) are left out: the class
+  docstring describes its fields.
 """
 
+import builtins
 import importlib
+import inspect
 import re
 
 import griffe
@@ -29,10 +34,26 @@ def _rewrite(annotation):
     return annotation if public == text else public
 
 
+_BUILTIN_DOCS = {
+    inspect.cleandoc(value.__doc__)
+    for value in vars(builtins).values()
+    if isinstance(value, type) and value.__doc__
+} | {inspect.cleandoc(type(None).__doc__ or "")} - {""}
+
+
 class PublicAnnotations(griffe.Extension):
+    def on_class(self, *, cls: griffe.Class, **kwargs) -> None:
+        for name, member in list(cls.members.items()):
+            if member.is_alias or not member.is_attribute or member.docstring is None:
+                continue
+            if inspect.cleandoc(member.docstring.value) in _BUILTIN_DOCS:
+                cls.del_member(name)
+
     def on_function(self, *, func: griffe.Function, **kwargs) -> None:
         for parameter in func.parameters:
             parameter.annotation = _rewrite(parameter.annotation)
+            if str(parameter.default) == "<factory>":  # a dataclass default_factory
+                parameter.default = "..."  # valid Python, so the signature can be formatted
         func.returns = _rewrite(func.returns)
 
     def on_attribute(self, *, attr: griffe.Attribute, **kwargs) -> None:
