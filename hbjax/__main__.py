@@ -2,5 +2,5 @@ import sys
 
 from ._cli.parser import main
 
-
-sys.exit(main())
+if __name__ == "__main__":
+    sys.exit(main())
