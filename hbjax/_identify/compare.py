@@ -6,11 +6,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._core import display
 from .._core.initial import estimate_initial_state, injection
 from .._core.model import AbstractModel, Hammerstein, lagged, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent
 from .._misc import as_float_array, is_traced, same_length
+from .recordings import as_input_output
 
 INITIAL_STATES = ("zero", "estimate")
 
@@ -118,7 +120,16 @@ class Comparison(eqx.Module):
             u0 = "0" if s is None else f"{float(s.u0):.4g}"
             y0 = "zeros" if s is None else np.array2string(np.asarray(s.y0), precision=4)
             lines.append(f"{name:<16}{f:>10.2f}{r:>12.4g}{u0:>12}  {y0}")
-        return "\n".join(lines)
+        rows = [[str(n), f"{f:.2f}", display.format_number(r),
+                 "0" if s is None else display.format_array(s.u0),
+                 "zeros" if s is None else display.format_array(s.y0)]
+                for n, f, r, s in zip(self.names, self.fits, self.rmses, self.initial_states)]
+        table = display.Table(["model", "fit %", "RMSE", "u0", "y0"], rows)
+        html = display.report(lines[0], tables=[table])._repr_html_()
+        return display.Summary("\n".join(lines), html)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
     def __repr__(self):
         fits = ", ".join(f"{n}: {f:.2f}%" for n, f in zip(self.names, self.fits))
@@ -127,11 +138,7 @@ class Comparison(eqx.Module):
 
 
 def _record(v, y):
-    dt = None
-    if y is None:
-        if not (hasattr(v, "v") and hasattr(v, "y")):
-            raise TypeError("`y` is missing: pass `v` and `y`, or an hbjax.Recording as `v`.")
-        dt, v, y = getattr(v, "dt", None), v.v, v.y
+    v, y, dt = as_input_output(v, y)
     v = as_float_array(v, "v", ndim=1)
     y = as_float_array(y, "y", ndim=1)
     same_length(v=v, y=y)

@@ -6,6 +6,7 @@ import math
 import equinox as eqx
 import numpy as np
 
+from .._core import display
 from .._core.model import AbstractModel, Hammerstein
 from .._core.simulate import predict
 from .._diagnose.residual_tests import Z99, chi2_sf, correlation
@@ -53,7 +54,7 @@ class ResidualAnalysis(eqx.Module):
         out_a = int(np.sum(np.abs(self.autocorrelation) > self.band))
         out_x = int(np.sum(np.abs(self.cross_correlation) > self.band))
         verdict = "passed" if self.passed else "REJECTED at the 1% level"
-        return "\n".join([
+        return display.Summary("\n".join([
             f"resid: {self.residuals.shape[0]} one-step prediction errors "
             f"(first {self.skip} dropped), lags {self.lags}, 99% band +-{self.band:.4f}",
             f"  whiteness    : {out_a}/{self.lags} autocorrelations outside the band, "
@@ -61,7 +62,10 @@ class ResidualAnalysis(eqx.Module):
             f"  independence : {out_x}/{self.lags + 1} cross-correlations with past inputs "
             f"outside the band, statistic {self.independence:.2f}, p = {self.p_independence:.3g}",
             f"  {verdict}",
-        ])
+        ]))
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
     def __repr__(self):
         return (f"ResidualAnalysis(p_whiteness={self.p_whiteness:.3g}, "

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
+from .._core import display
 from .._core.model import Hammerstein
 from .._core.simulate import predict, simulate
 from .._misc import positive_int
@@ -64,7 +65,17 @@ class StructureSelection(eqx.Module):
                 self.validation_fit, self.messages):
             lines.append(f"{na:>3}{nb:>4}{m:>3}{k:>4}{loss:>12.4g}{bic:>12.1f}{aic:>12.1f}"
                          f"{vf:>12.2f}  {msg}")
-        return "\n".join(lines)
+        rows = [[str(o), str(k), display.format_number(loss), f"{bic:.1f}", f"{aic:.1f}",
+                 f"{vf:.2f}", msg] for o, k, loss, bic, aic, vf, msg in zip(
+                     self.orders, self.params, self.loss, self.bic, self.aic,
+                     self.validation_fit, self.messages)]
+        table = display.Table(["(na, nb, m)", "k", "loss", "BIC", "AIC", "val. fit %",
+                               "result"], rows)
+        html = display.report(lines[0], tables=[table])._repr_html_()
+        return display.Summary("\n".join(lines), html)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
 
     def __repr__(self):
         return (f"StructureSelection(best={self.best}, rank_by={self.rank_by!r}, "
