@@ -99,6 +99,11 @@ def test_estimate_initial_state_recovers_truth(system):
     np.testing.assert_allclose(s.y0, y0, atol=1e-5)
     assert abs(float(s.u0) - u0) < 1e-5
     np.testing.assert_allclose(hbjax.simulate(model, v, u0=s.u0, y0=s.y0), y, atol=1e-5)
+    # nb > na and v(0) beyond the band: u0 survives only in the input lags u(-j) = u0
+    short = hbjax.Hammerstein(model.backlash, hbjax.ARX([-0.5], [0.0, 1.0, 0.5]))
+    y = np.asarray(hbjax.simulate(short, v[1:], u0=-0.7, y0=[2.0]))
+    s = hbjax.estimate_initial_state(short, v[1:], y)
+    assert abs(float(s.u0) + 0.7) < 1e-8 and abs(float(s.y0[0]) - 2.0) < 1e-8
 
 
 # --------------------------------------------------------------------------- compare

@@ -126,7 +126,6 @@ def _estimate(model: Hammerstein, v, y):
     bl = model.backlash
     p1, p2 = bl.p1(v[0]), bl.p2(v[0])
     lo, hi = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
-    # Outside the band at v(0) the play state is clipped to its edge: search the band only.
     grid = jnp.linspace(lo, hi, _GRID)
     costs = jax.vmap(lambda u: cost(u)[0])(grid)
     k = jnp.argmin(costs)
@@ -141,7 +140,23 @@ def _estimate(model: Hammerstein, v, y):
         return jnp.where(keep_left, x0, c), jnp.where(keep_left, d, x1)
 
     x0, x1 = jax.lax.fori_loop(0, _GOLDEN_STEPS, golden, (left, right))
-    u_best = jnp.where(cost((x0 + x1) / 2)[0] <= costs[k], (x0 + x1) / 2, grid[k])
+    inside = jnp.where(cost((x0 + x1) / 2)[0] <= costs[k], (x0 + x1) / 2, grid[k])
+
+    # Beyond an edge of the band the play operator starts from that edge whatever u0 is,
+    # and u0 is left only in the input lags, linearly: one least squares per side.
+    perp = lambda x: x - q @ (q.T @ x) if h.shape[1] else x  # noqa: E731
+    g_perp = perp(g)
+
+    def beyond(edge, side):
+        r = perp(y - model.simulate_trajectory(v, jnp.zeros_like(v), edge))
+        gg = jnp.sum(g_perp**2)
+        # na >= nb: the output lags already span the input lags' response (g_perp ~ 0)
+        free = gg > 1e-10 * jnp.sum(g**2)
+        u = jnp.sum(g_perp * r) / jnp.where(free, gg, 1.0)
+        return jnp.where(free & (side * (u - edge) > 0), u, edge)
+
+    candidates = jnp.stack([inside, beyond(hi, 1.0), beyond(lo, -1.0)])
+    u_best = candidates[jnp.argmin(jax.vmap(lambda u: cost(u)[0])(candidates))]
     c_best, res = cost(u_best)
     return InitialState(solve(res), u_best, jnp.maximum(c_best, 0.0))
 
@@ -152,9 +167,12 @@ def estimate_initial_state(model: Hammerstein, v, y) -> InitialState:
 
     The free run from ``(y0, u0)`` is affine in ``y0`` (module docstring), so for every
     candidate ``u0`` the best ``y0`` is a linear least-squares fit of the whole record's
-    free-run error; ``u0`` is searched over the band ``[L(v(0)), H(v(0))]`` at the first
-    input (outside it the play operator clips the state to the band's edge anyway) on a
-    33-point grid refined by golden-section search.
+    free-run error. Inside the band ``[L(v(0)), H(v(0))]`` at the first input, ``u0`` is
+    searched on a 33-point grid refined by golden-section search; beyond either edge the
+    play operator starts from that edge and ``u0`` remains only in the input lags
+    ``u(-j) = u0``, where it is linear: one least squares per side. When ``v(0)`` is
+    outside the band and ``na >= nb``, the output lags absorb the input lags and only the
+    play state's edge is determined (any such ``(y0, u0)`` gives the same free run).
 
     ``hbjax.simulate(model, v, u0=s.u0, y0=s.y0)`` reproduces the fitted free run. The
     input lags before the first sample are held at ``u0`` (a system at rest in its play
