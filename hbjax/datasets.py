@@ -16,7 +16,7 @@ import json
 
 import numpy as np
 
-from ._io.recording import Recording
+from ._io.recording import BRFD_COLUMNS, Recording
 
 __all__ = ["brfd", "brfd_names", "cascaded_tanks"]
 
@@ -69,7 +69,8 @@ def brfd(name: str) -> Recording:
     """One banded rotary friction device test (a semi-active friction damper with backlash).
 
     Input ``v``: imposed displacement (in, column 1 of the file); output ``y``: friction force
-    (kip, column 2); ``dt = 1/1024`` s. Dry friction in the band brake makes the force flat while
+    (kip, column 2); ``dt = 1/1024`` s; `channels` ``"velocity"``, ``"actuator force 1"`` and
+    ``"actuator force 2"`` (columns 3-5). Dry friction in the band brake makes the force flat while
     sliding and steep at reversals; backlash in the linkage adds a short flat segment near zero
     force after each reversal.
 
@@ -90,4 +91,6 @@ def brfd(name: str) -> Recording:
 def _brfd(name: str) -> Recording:
     doc = json.loads((_DATA / "brfd" / f"{name}.json").read_text(encoding="utf-8"))
     data = np.asarray(doc["data"], dtype=np.float64)
-    return Recording(data[:, 1], data[:, 2], float(doc["dt"]), f"hbjax.datasets:brfd:{name}", name)
+    channels = {BRFD_COLUMNS[j]: data[:, j] for j in range(3, min(data.shape[1], len(BRFD_COLUMNS)))}
+    return Recording(data[:, 1], data[:, 2], float(doc["dt"]), f"hbjax.datasets:brfd:{name}", name,
+                     channels=channels)

@@ -144,3 +144,13 @@ def test_estimators_take_recordings_and_dataframes(system):
         hbjax.diagnose(system, rec.slice(0, 120), progress=False)
     with pytest.raises(TypeError, match="`y` is missing"):
         hbjax.diagnose(system, v, progress=False)
+
+
+def test_brfd_recordings_carry_velocity_and_actuator_forces():
+    for name in hbjax.datasets.brfd_names():
+        rec = hbjax.datasets.brfd(name)
+        assert list(rec.channels) == ["velocity", "actuator force 1", "actuator force 2"]
+        # the velocity channel is the time derivative of the displacement input (in/s)
+        slope = np.gradient(rec.v, rec.dt)
+        assert np.corrcoef(slope, rec.channels["velocity"])[0, 1] > 0.99
+        assert np.std(rec.channels["velocity"]) / np.std(slope) == pytest.approx(1.0, abs=0.01)
