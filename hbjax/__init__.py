@@ -33,6 +33,7 @@ from ._diagnose.nominal import identify_nominal as identify_nominal
 from ._diagnose.residual_tests import fit_percent as fit_percent
 from ._diagnose.diagnose import Diagnosis as Diagnosis, Finding as Finding, diagnose as diagnose
 from ._diagnose.effects import EFFECTS as EFFECTS
+from ._diagnose.effect_base import AbstractEffect as AbstractEffect
 # --- io, datasets, cli (issue 6) ---
 from . import datasets as datasets, internal as internal
 from ._io.recording import (

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import effects as fx
+from .kernel_effect import signals
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import positive_int
@@ -111,63 +112,6 @@ def concealed_recording(effect: str | None, *, system: int = 0, inputs: str = "s
 
 
 def _conceal(effect, base, v, y0, u, rng, n):
-    sy = float(np.std(y0))
-    a, b = np.asarray(base.arx.a), np.asarray(base.arx.b)
-    c1, c2 = np.asarray(base.backlash.c1), np.asarray(base.backlash.c2)
     if effect is None:
         return base, base, {}
-    if effect == "parameter_mismatch":
-        true = Hammerstein(Backlash(c1 - 0.3, c2 + 0.3), ARX(a * 0.9, b * 1.25))
-        return true, base, {}
-    if effect == "output_saturation":
-        upper = float(np.quantile(y0, rng.uniform(0.8, 0.9)))
-        return fx.OutputSaturation(base, None, jnp.asarray(upper)), base, \
-            {"lower": None, "upper": upper}
-    if effect == "input_saturation":
-        upper = float(np.quantile(u, rng.uniform(0.75, 0.85)))
-        lower = float(np.quantile(u, rng.uniform(0.15, 0.25)))
-        return fx.InputSaturation(base, jnp.asarray(lower), jnp.asarray(upper)), base, \
-            {"lower": lower, "upper": upper}
-    if effect == "extra_delay":
-        d = int(rng.integers(2, 5))
-        return fx.ExtraDelay(base, d), base, {"delay": d}
-    if effect == "unmodeled_dynamics":
-        p, z = 0.8, 0.3  # missing pole at 0.8 and zero at 0.3, DC gain kept by the nominal
-        A = np.convolve(np.concatenate([[1.0], a]), [1.0, -p])
-        B = np.convolve(b, [1.0, -z])
-        true = fx.UnmodeledDynamics(Hammerstein(base.backlash, ARX(A[1:-1], B[:-1])),
-                                    jnp.asarray(A[-1]), jnp.asarray(B[-1]))
-        nominal = Hammerstein(base.backlash, ARX(a, b * (1 - z) / (1 - p)))
-        return true, nominal, {"pole": p, "zero": z}
-    if effect == "colored_noise":
-        rho = float(rng.uniform(0.8, 0.95))
-        return fx.ColoredNoise(base, jnp.asarray([-rho, 0.0])), base, {"pole": rho}
-    if effect == "offset_drift":
-        rate = float(rng.choice([-1, 1]) * 0.6 * sy / n)
-        return fx.OffsetDrift(base, jnp.asarray(0.0), jnp.asarray(rate)), base, {"rate": rate}
-    if effect == "parameter_change":
-        t = int(rng.uniform(0.25, 0.5) * n)
-        z = np.zeros_like
-        true = fx.ParameterChange(base, t, jnp.asarray(z(a)), jnp.asarray(-0.4 * b),
-                                  jnp.asarray(z(c1)), jnp.asarray(z(c2)))
-        return true, base, {"time": t}
-    if effect == "periodic_disturbance":
-        f = float(rng.uniform(0.05, 0.3))
-        amp = 0.2 * sy
-        return fx.PeriodicDisturbance(base, jnp.asarray(f), jnp.asarray(amp),
-                                      jnp.asarray(0.3 * amp)), base, {"frequency": f}
-    if effect == "output_nonlinearity":
-        center, scale = float(np.mean(y0)), sy
-        return fx.OutputNonlinearity(base, jnp.asarray(0.12), jnp.asarray(-0.05), center, scale), \
-            base, {"k2": 0.12, "k3": -0.05}
-    if effect == "coulomb_friction":
-        du = np.abs(np.diff(u))
-        width = 0.1 * float(np.median(du[du > 0]))
-        force = 0.25 * sy
-        return fx.CoulombFriction(base, jnp.asarray(force), width), base, {"force": force}
-    if effect == "branch_degree":
-        scale = float(np.max(np.abs(v)))
-        extra = 0.25 * float(np.max(np.abs(u)))
-        return fx.BranchDegree(base, jnp.asarray(extra), jnp.asarray(extra), scale), base, \
-            {"c_extra": extra / scale ** base.backlash.m}
-    raise ValueError(effect)  # pragma: no cover
+    return fx.EFFECTS[effect].concealed(base, signals(v, y0, u, n), rng)

@@ -33,10 +33,10 @@ from .._core.precision import require_x64
 from .._core.progress import check_progress, progress_bar
 from .._identify.recordings import as_input_output
 from .._misc import as_float_array, check_finite, same_length
-from .solve import evaluate_batch, fit_batch, jacobian, sse_batch
-from .effects import EFFECTS, base_theta
+from .solve import evaluate_batch, jacobian
+from .effects import base_theta, resolve
+from .fitting import choose_starts, evaluate_candidates, fit_candidates
 from .kernel import MAX_DELAY
-from .explain import describe
 from .._core.model import Hammerstein
 
 #: BIC margin a candidate must win by ("very strong" evidence on the Kass-Raftery scale)
@@ -44,7 +44,6 @@ BIC_MARGIN = 10.0
 #: z of the held-out Diebold-Mariano test a candidate must reach
 DM_Z = 2.0
 MAX_STEPS = 45
-_SSE_BATCH = 64
 _PREDICTION_METRIC = ("colored_noise",)
 #: key of the candidate table for the output clip fitted on top of the nominal model
 ON_NOMINAL = "output_saturation (nominal base)"
@@ -191,21 +190,7 @@ def _check_inputs(model, v, y, holdout, effects, key):
         raise ValueError(
             f"record too short for `holdout`={holdout}: {n} samples give {n_fit} to fit and "
             f"{n_hold} held out; need at least {need_fit} to fit and 50 held out.")
-    if effects is None:
-        effects = list(EFFECTS)
-    else:
-        if isinstance(effects, str):
-            effects = [effects]
-        if not isinstance(effects, (list, tuple, set, frozenset)):
-            raise TypeError(f"`effects` must be a list of names from hbjax.EFFECTS, got "
-                            f"{type(effects).__name__}.")
-        effects = list(effects)
-        unknown = [e for e in effects if e not in EFFECTS]
-        if unknown:
-            raise ValueError(f"unknown effect name(s) in `effects`: {unknown}; "
-                             f"known: {sorted(EFFECTS)}.")
-        if "parameter_mismatch" not in effects:
-            effects.insert(0, "parameter_mismatch")
+    effects = resolve(effects)
     if key is not None and not isinstance(key, jax.Array):
         raise TypeError("`key` must be a jax PRNG key or None.")
     return np.asarray(v), np.asarray(y), n_fit, effects
@@ -252,7 +237,8 @@ def diagnose(model: Hammerstein, v, y=None, *, holdout: float = 0.3, effects=Non
       the diagnosis figure's time axis is in seconds when the recording's ``dt`` is known).
     - `holdout`: the last fraction of the record, never used for fitting; every fit figure
       is measured on it.
-    - `effects`: names from :data:`hbjax.EFFECTS` to consider (default all);
+    - `effects`: names from :data:`hbjax.EFFECTS` and/or :class:`hbjax.AbstractEffect`
+      subclasses to consider (default all of :data:`hbjax.EFFECTS`);
       ``parameter_mismatch`` is always included.
     - `key`: unused (the procedure is deterministic); accepted for API symmetry.
     - `criterion`: ``"prediction"`` (default; one-step prediction error, maximum likelihood
@@ -285,7 +271,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar):
     if criterion == "simulation":
         # no noise model in an output-error fit, and the change model's criterion is only
         # an approximation of the output error after the change
-        effects = [e for e in effects if e not in ("colored_noise", "parameter_change")]
+        effects = [e for e in effects if e.name not in ("colored_noise", "parameter_change")]
         burn = max(burn, min(n_fit // 5, 300))
     v_fit, y_fit = v[:n_fit], y[:n_fit]
     T = len(v)
@@ -299,7 +285,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar):
     width = 0.1 * float(np.median(du[du > 1e-12 * (np.max(du) + 1e-300)])) if np.any(du > 0) else 1.0
     consts = jnp.asarray([float(consts0[0]), float(np.mean(y_fit)),
                           max(float(np.std(y_fit)), 1e-12), max(width, 1e-12)])
-    S_base = cands.selection(lay, cands.Candidate("parameter_mismatch", [], [], 0), theta_nom, K)
+    S_base = cands.base_selection(lay, theta_nom, K)
     e_j, J = jacobian(lay, theta_nom, jnp.asarray(S_base), jnp.asarray(cands._ints()), consts,
                       v_fit, y_fit, burn, criterion)
     tests = _residual_tests(v_fit, y_fit, ysim_nom[:n_fit], eps_nom[:n_fit], u_nom[:n_fit], burn)
@@ -310,27 +296,16 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar):
     bar.update(1)
     # 2. Candidates: choose each start by a batched criterion evaluation, then fit all.
     candidates = cands.build(ctx, effects)
-    starts = [(ci, th, it) for ci, c in enumerate(candidates) for th, it in c.starts]
-    sse = _batched_sse(lay, [s[1] for s in starts], [s[2] for s in starts], consts, v_fit, y_fit,
-                       burn, criterion)
-    chosen = {}
-    for (ci, th, it), val in zip(starts, sse):
-        if ci not in chosen or val < chosen[ci][0]:
-            chosen[ci] = (val, th, it)
-    theta0 = [chosen[i][1] for i in range(len(candidates))]
-    ints = [chosen[i][2] for i in range(len(candidates))]
+    theta0, ints = choose_starts(ctx, candidates, v_fit, y_fit, criterion)
     bar.update(1)
-    theta_fit, steps, ok = _fit_groups(lay, candidates, theta0, ints, consts, v_fit, y_fit, burn,
-                                       criterion)
+    theta_fit, steps, ok = fit_candidates(ctx, candidates, theta0, ints, v_fit, y_fit, criterion,
+                                          MAX_STEPS)
 
     bar.update(1)
     # 3. Whole-record evaluation of nominal + every fitted candidate, then the decision.
-    all_theta = jnp.concatenate([theta_nom[None], theta_fit])
     all_ints = jnp.asarray(np.stack([cands._ints()] + ints))
-    pad = len(EFFECTS) + 1 - all_theta.shape[0]  # fixed batch: one compiled evaluation
-    fast_all, eps_all, ysim_all, u_all = (np.asarray(a)[:all_theta.shape[0]] for a in evaluate_batch(
-        lay, jnp.concatenate([all_theta, jnp.repeat(all_theta[:1], pad, 0)]),
-        jnp.concatenate([all_ints, jnp.repeat(all_ints[:1], pad, 0)]), consts, v, y, criterion))
+    fast_all, eps_all, ysim_all, u_all = evaluate_candidates(ctx, candidates, theta_fit, all_ints,
+                                                             v, y, criterion)
     stats = _statistics(y, fast_all, eps_all, ysim_all, n_fit, burn, lay, candidates, theta_fit)
     for c, st, s_, o in zip(candidates, stats[1:], np.asarray(steps), np.asarray(ok)):
         st["lm_steps"], st["lm_converged"] = int(s_), bool(o)
@@ -340,7 +315,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar):
                         ("bic", "k", "fit_sim", "fit_pred", "lm_steps", "lm_converged")}
              for i, c in enumerate(candidates)}
     table["nominal"] = {k: stats[0][k] for k in ("bic", "k", "fit_sim", "fit_pred")}
-    if "output_saturation" in effects and not any(f.effect == "output_saturation"
+    if fx.OutputSaturation in effects and not any(f.effect == "output_saturation"
                                                     for f in findings):
         row, finding = _clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
                                         [c.effect for c in candidates], criterion, tests)
@@ -356,53 +331,6 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar):
     bar.update(1)
     return Diagnosis(bool(findings) or unexplained, findings, _jsonable(tests), _jsonable(table),
                      n_fit, T - n_fit, model, v, y)
-
-
-# Candidates are fitted in three batches of fixed size, so that each compiled solver is
-# reused across calls: those that need the output clip/curvature (and its FFT), the
-# change model (twice the base parameters) and all others.
-_GROUPS = (
-    (("output_saturation", "output_nonlinearity"), True, False),
-    (("parameter_change",), False, True),
-    (None, False, False),
-)
-
-
-def _fit_groups(lay, candidates, theta0, ints, consts, v, y, burn, criterion):
-    n = len(candidates)
-    theta_fit = [None] * n
-    steps, ok = np.zeros(n, int), np.zeros(n, bool)
-    taken = set()
-    for names, output_static, wide in _GROUPS:
-        idx = [i for i, c in enumerate(candidates) if i not in taken and
-               (names is None or c.effect in names)]
-        if not idx:
-            continue
-        taken.update(idx)
-        size = len(names) if names else len(EFFECTS) - 3
-        K = 2 * lay.p_base if wide else lay.p_base + 4
-        th = [theta0[i] for i in idx]
-        it = [ints[i] for i in idx]
-        S = [cands.selection(lay, candidates[i], theta0[i], K) for i in idx]
-        pad = max(size - len(idx), 0)
-        out, st, cv = fit_batch(
-            lay, jnp.stack(th + th[:1] * pad), jnp.asarray(np.stack(S + S[:1] * pad)),
-            jnp.asarray(np.stack(it + it[:1] * pad)), consts, v, y, burn, MAX_STEPS,
-            output_static, criterion)
-        for j, i in enumerate(idx):
-            theta_fit[i], steps[i], ok[i] = out[j], int(st[j]), bool(cv[j])
-    return jnp.stack(theta_fit), steps, ok
-
-
-def _batched_sse(lay, thetas, ints, consts, v, y, burn, criterion):
-    out = []
-    for i in range(0, len(thetas), _SSE_BATCH):
-        th, it = thetas[i:i + _SSE_BATCH], ints[i:i + _SSE_BATCH]
-        pad = _SSE_BATCH - len(th)
-        vals = sse_batch(lay, jnp.stack(th + th[:1] * pad), jnp.asarray(np.stack(it + it[:1] * pad)),
-                         consts, v, y, burn, criterion)
-        out.extend(np.asarray(vals)[:len(th)].tolist())
-    return [v if math.isfinite(v) else np.inf for v in out]
 
 
 def _residual_tests(v, y, ysim, eps, u, burn):
@@ -489,8 +417,8 @@ def _decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y
         if not (dbic > BIC_MARGIN and dm > DM_Z and st[key] > against[key]
                 and st[key] > nom[key] and extra_ok):
             continue
-        model = cands.to_model(ctx.lay, c.effect, np.asarray(theta_fit[i - 1]), ints[i], ctx.consts)
-        text = describe(c.effect, model, ctx, dict(
+        model = cands.to_model(ctx, c, np.asarray(theta_fit[i - 1]), ints[i])
+        text = model.describe(ctx, dict(
             y=y, v=v, n_fit=n_fit, ysim=ysim_all[i], ysim_ref=ysim_all[ref_i], u=u_all[i],
             ints=ints[i], tests=tests))
         evidence.update(text.pop("evidence", {}))
@@ -611,7 +539,7 @@ def _clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, name
         return row, None
     ext = fx.OutputSaturation(model, jnp.asarray(lo) if np.isfinite(lo) else None,
                               jnp.asarray(hi) if np.isfinite(hi) else None)
-    text = describe("output_saturation", ext, ctx, dict(
+    text = ext.describe(ctx, dict(
         y=y, v=v, n_fit=n_fit, ysim=y_ext, ysim_ref=y_nom, u=np.asarray(u_all[0]),
         ints=cands._ints(), tests=tests))
     evidence = {

@@ -3,7 +3,7 @@
 Every effect of the diagnosis library is a term of a single extended model whose neutral
 values (zero coefficients, infinite clip levels, zero delay, change time past the end)
 give back the nominal model of paper eq. (10) exactly. The effect classes of
-:mod:`hbjax._diagnose.effects` and the diagnosis fits all call :func:`simulate_full` and
+effects (:mod:`.kernel_effect`) and the diagnosis fits all call :func:`simulate_full` and
 :func:`whiten`, so one compiled function serves every candidate of a base structure
 ``(na, nb, m)``; which parameters a candidate may move is data (a selection matrix),
 not structure.
@@ -212,7 +212,7 @@ def _lag_n(x, k):
     return x if k == 0 else _lag(x, k)
 
 
-def _iir_fft(a, num):
+def iir_fft(a, num):
     """``num / A(q^-1)`` with zero initial conditions, by FFT on a padded grid."""
     T = num.shape[0]
     nfft = 1 << (2 * T - 1).bit_length()
@@ -233,6 +233,22 @@ def _branches(lay: Layout, theta, ints, consts, v):
     return t, s, powers, extra, p1, p2
 
 
+def _gather(p1, p2, u0):
+    """Play-operator output as a gather of branch values at primal-only indices."""
+    low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
+    k, hi = _play_indices(jax.lax.stop_gradient(low), jax.lax.stop_gradient(high), u0)
+    kk = jnp.maximum(k, 0)
+    return jnp.where(k < 0, u0, jnp.where(hi, high[kk], low[kk]))
+
+
+def play_gather(lay: Layout, theta, consts, v, u0=0.0):
+    """Backlash output of the base branches in ``theta`` (no change, no extra degree
+    term unless set), differentiable in the branch coefficients."""
+    ints = jnp.asarray([0, 2**30])
+    _, _, _, _, p1, p2 = _branches(lay, theta, ints, consts, v)
+    return _gather(p1, p2, u0)
+
+
 def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
                           output_static: bool = True, criterion: str = "prediction"):
     """Prediction error of the extended model for fitting (see the comment above);
@@ -243,11 +259,7 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
     na, nb = lay.na, lay.nb
     g = lambda name: lay.get(theta, name)  # noqa: E731
     t, s, powers, extra, p1, p2 = _branches(lay, theta, ints, consts, v)
-    low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
-    k, hi = _play_indices(jax.lax.stop_gradient(low), jax.lax.stop_gradient(high), u0)
-    kk = jnp.maximum(k, 0)
-    u = jnp.where(k < 0, u0, jnp.where(hi, high[kk], low[kk]))
-    u = jnp.clip(u, g("in_lo")[0], g("in_hi")[0])
+    u = jnp.clip(_gather(p1, p2, u0), g("in_lo")[0], g("in_hi")[0])
     d = ints[0]
     u = jnp.where(t >= d, u[jnp.maximum(t - d, 0)], 0.0)
     a = jnp.concatenate([g("a"), g("a_extra")])
@@ -262,13 +274,13 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
            + g("sin_sin")[0] * jnp.sin(phase) + g("friction")[0] * jnp.tanh(du / consts[3]))
     r = y - add
     if output_static:
-        y_lin = _iir_fft(a, bu)
+        y_lin = iir_fft(a, bu)
         z = (y_lin - consts[1]) / consts[2]
         shaped = y_lin + consts[2] * (g("nl2")[0] * z**2 + g("nl3")[0] * z**3) + add
         r = r - (jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) - y_lin - add)
     w = r - bu + sum((a[i] + s * da[i]) * _lag(r, i + 1) for i in range(na + 1))
     if criterion == "simulation":
-        return _iir_fft(a, w)
+        return iir_fft(a, w)
     nd = g("noise_d")
     return w + nd[0] * _lag(w, 1) + nd[1] * _lag(w, 2)
 
@@ -362,7 +374,7 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
     Dw = Dw.at[:, slots["a_extra"][0]].add(_lag(r, na + 1))
     if criterion == "simulation":
         # e = w / A:  de = (dw - (dA) e) / A
-        e = _iir_fft(a, w)
+        e = iir_fft(a, w)
         for i in range(na):
             Dw = Dw.at[:, slots["a"][0] + i].add(-_lag(e, i + 1))
         Dw = Dw.at[:, slots["a_extra"][0]].add(-_lag(e, na + 1))

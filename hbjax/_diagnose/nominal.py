@@ -15,7 +15,7 @@ from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._misc import as_float_array, check_finite, same_length
 from .solve import fit_batch
-from .effects import base_theta
+from .kernel_effect import base_theta
 from .kernel import MAX_DELAY
 from .._core.model import Hammerstein
 
@@ -76,8 +76,7 @@ def identify_nominal(v, y, *, na: int = 2, nb: int = 2, m: int = 3, gap: float |
         make = _static_start if criterion == "simulation" else _linear_start
         start = make(v, y, na, nb, m, gap)
     lay, theta0 = base_theta(start)
-    cand = cands.Candidate("parameter_mismatch", [], [], 0)
-    S = cands.selection(lay, cand, theta0, lay.p_base + 4)
+    S = cands.base_selection(lay, theta0, lay.p_base + 4)
     consts = jnp.asarray([max(float(np.max(np.abs(v))), 1e-12), float(np.mean(y)),
                           max(float(np.std(y)), 1e-12), 1.0])
     ints = jnp.asarray(cands._ints())[None]

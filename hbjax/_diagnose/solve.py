@@ -16,7 +16,8 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .kernel import Layout, fast_jacobian, fast_prediction_error, prediction_error
+from .effect_base import base_model, term_error
+from .kernel import Layout, fast_jacobian, fast_prediction_error, play_gather, prediction_error
 
 
 def _masked_eps(lay, theta, ints, consts, v, y, burn, output_static=True,
@@ -54,29 +55,39 @@ def fit_batch(lay: Layout, theta0, S, ints, consts, v, y, burn: int, max_steps: 
             return _masked_eps(lay, th0 + s @ delta, it, consts, v, y, burn, output_static,
                                criterion)
 
-        # The solver linearises the residual and applies/transposes that linear map many
-        # times per step; a JVP that materialises the (T, K) Jacobian once by forward mode
-        # makes those products dense matmuls (cheaper to run and much cheaper to compile
-        # than linearising and transposing the criterion).
-        @jax.custom_jvp
-        def resid(delta):
-            return eps(delta)
+        def jac(delta):
+            return _masked_jacobian(lay, th0 + s @ delta, s, it, consts, v, y, burn,
+                                    output_static, criterion)
 
-        @resid.defjvp
-        def _jvp(primals, tangents):
-            J = _masked_jacobian(lay, th0 + s @ primals[0], s, it, consts, v, y, burn,
-                                 output_static, criterion)
-            return eps(primals[0]), J @ tangents[0]
-
-        def fn(delta, _):
-            return resid(delta)
-
-        sol = optx.least_squares(
-            fn, optx.LevenbergMarquardt(rtol=1e-5, atol=1e-8), jnp.zeros(s.shape[1]),
-            max_steps=max_steps, throw=False)
-        return th0 + s @ sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+        value, steps, ok = _least_squares(eps, jac, s.shape[1], max_steps)
+        return th0 + s @ value, steps, ok
 
     return jax.vmap(one)(theta0, S, ints)
+
+
+def _least_squares(eps, jac, n: int, max_steps: int):
+    """Levenberg-Marquardt on ``eps(delta)`` from ``delta = 0`` with the Jacobian
+    ``jac(delta)``; returns ``(delta, steps, converged)``."""
+
+    # The solver linearises the residual and applies/transposes that linear map many
+    # times per step; a JVP that materialises the (T, K) Jacobian once makes those
+    # products dense matmuls (cheaper to run and much cheaper to compile than
+    # linearising and transposing the criterion).
+    @jax.custom_jvp
+    def resid(delta):
+        return eps(delta)
+
+    @resid.defjvp
+    def _jvp(primals, tangents):
+        return eps(primals[0]), jac(primals[0]) @ tangents[0]
+
+    def fn(delta, _):
+        return resid(delta)
+
+    sol = optx.least_squares(
+        fn, optx.LevenbergMarquardt(rtol=1e-5, atol=1e-8), jnp.zeros(n),
+        max_steps=max_steps, throw=False)
+    return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
 
 @eqx.filter_jit
@@ -104,3 +115,54 @@ def jacobian(lay: Layout, theta, S, ints, consts, v, y, burn: int, criterion: st
 
     eps = _masked_eps(lay, theta, ints, consts, v, y, burn, False, criterion)
     return eps, _masked_jacobian(lay, theta, S, ints, consts, v, y, burn, False, criterion)
+
+
+# --- the generic path: effects that are not slots of the kernel ------------------------
+
+
+def _masked(e, burn):
+    e = jnp.where(jnp.arange(e.shape[0]) >= burn, e, 0.0)
+    return jnp.where(jnp.isfinite(e), e, 1e6)
+
+
+@eqx.filter_jit
+def fit_terms(cls, lay: Layout, theta0, S, params0, scales, consts, v, y, burn: int,
+              max_steps: int, criterion: str = "prediction"):
+    """Levenberg-Marquardt of a generic effect ``cls`` (:func:`term_error`) jointly with
+    the base parameters (columns of ``S``), Jacobian by ``jax.jacfwd``. Returns
+    ``(theta, params, steps, converged)``."""
+    K = S.shape[1]
+
+    def split(delta):
+        return theta0 + S @ delta[:K], params0 + scales * delta[K:]
+
+    def eps(delta):
+        return _masked(term_error(cls, lay, *split(delta), consts, v, y, criterion), burn)
+
+    def jac(delta):
+        J = jax.jacfwd(eps)(delta)
+        return jnp.where(jnp.isfinite(J), J, 0.0)
+
+    value, steps, ok = _least_squares(eps, jac, K + params0.shape[0], max_steps)
+    theta, params = split(value)
+    return theta, params, steps, ok
+
+
+@eqx.filter_jit
+def sse_terms(cls, lay: Layout, theta, params, consts, v, y, burn: int,
+              criterion: str = "prediction"):
+    """Sum of squared errors of a generic effect for a batch of parameter starts."""
+    return jax.vmap(lambda p: jnp.sum(_masked(
+        term_error(cls, lay, theta, p, consts, v, y, criterion), burn) ** 2))(params)
+
+
+@eqx.filter_jit
+def evaluate_terms(cls, lay: Layout, theta, params, consts, v, y, criterion="prediction"):
+    """``(fitting error, exact prediction error, y_sim, u)`` of a generic effect over the
+    whole record, as :func:`evaluate_batch` gives for kernel effects."""
+    effect = cls.from_params(base_model(lay, theta), params)
+    y_sim = effect.simulate_trajectory(v, jnp.zeros_like(v), 0.0)
+    u = play_gather(lay, theta, consts, v)
+    u = u + effect.input_term(v, u)
+    eps = y - effect.predict_trajectory(v, y, 0.0)
+    return term_error(cls, lay, theta, params, consts, v, y, criterion), eps, y_sim, u
