@@ -25,7 +25,9 @@ TARGET_S = 30.0
 _CHILD = r"""
 import json, time
 t0 = time.perf_counter()
-import jax, hbjax
+import jax
+jax.config.update("jax_enable_x64", True)
+import hbjax
 t_import = time.perf_counter() - t0
 rec = hbjax.concealed_recording("output_saturation", system=0, n=%d, key=jax.random.PRNGKey(1))
 t1 = time.perf_counter()
@@ -56,8 +58,10 @@ def machine():
 
 
 def cold_run():
+    # compilation included: no persistent compilation cache in the child
+    env = dict(os.environ, HBJAX_NO_COMPILATION_CACHE="1")
     out = subprocess.run([sys.executable, "-c", _CHILD % (N, N)], capture_output=True, text=True,
-                         cwd=ROOT, check=True)
+                         cwd=ROOT, check=True, env=env)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -65,6 +69,7 @@ def jacobian_vs_jacfwd():
     import jax
     import jax.numpy as jnp
 
+    jax.config.update("jax_enable_x64", True)
     import hbjax
     from hbjax._diagnose.kernel import fast_jacobian, fast_prediction_error
 
