@@ -14,14 +14,13 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-import hbjax  # noqa: E402
+import hbjax
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
-from generators import paper_class as pc  # noqa: E402
-
-from _machine import describe, write_section  # noqa: E402
+from _machine import describe, write_section
+from generators import paper_class as pc
 
 
 def main():
@@ -58,17 +57,17 @@ def main():
     hits_val = sum(r[4] == truth for r in rows)
     lines = [
         f"Machine: {describe()}; load average {os.getloadavg()[0]:.1f} at the end.",
-        f"{args.systems} random paper-class systems, na = nb = {n}, m = {m}, N = {N} random-level "
+        (f"{args.systems} random paper-class systems, na = nb = {n}, m = {m}, N = {N} random-level "
         f"samples, noise {100 * args.noise:g}% of the output range, {args.starts} starts; grid "
         f"na in {list(na_grid)}, nb = {n}, m in {list(m_grid)}; "
-        f"{time.perf_counter() - start:.0f} s in all (compilation included).",
+        f"{time.perf_counter() - start:.0f} s in all (compilation included)."),
         "",
         "| system | delay | band / range | BIC picks | validation fit picks | val. fit of BIC pick (%) |",
         "|---|---|---|---|---|---|",
     ]
     lines += [f"| {s} | {d} | {g:.3f} | {b} | {bv} | {f:.2f} |" for s, d, g, b, bv, f in rows]
-    lines += ["", f"True structure {truth} picked by BIC in {hits}/{len(rows)} systems, "
-                  f"by the highest validation fit in {hits_val}/{len(rows)}."]
+    lines += ["", (f"True structure {truth} picked by BIC in {hits}/{len(rows)} systems, "
+                  f"by the highest validation fit in {hits_val}/{len(rows)}.")]
     report = "\n".join(lines)
     print(report)
     if not args.no_write:

@@ -4,9 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from generators import paper_class as pc
 
 import hbjax
-from generators import paper_class as pc
 
 
 def _loop(model, v, *, u0=0.0, y0=None, y=None, horizon=None):

@@ -116,7 +116,7 @@ def _estimate(model: Hammerstein, v, y):
     h, g = _basis(model, T, v.dtype)
     q = jnp.linalg.qr(h)[0]
     # Columns of 1/A that vanish within the record (a_na = 0) leave r singular: lstsq.
-    solve = lambda res: jnp.linalg.lstsq(h, res)[0] if h.shape[1] else jnp.zeros(0, v.dtype)  # noqa: E731
+    solve = lambda res: jnp.linalg.lstsq(h, res)[0] if h.shape[1] else jnp.zeros(0, v.dtype)
 
     def cost(u0):
         res = y - model.simulate_trajectory(v, jnp.zeros_like(v), u0) - u0 * g
@@ -144,7 +144,7 @@ def _estimate(model: Hammerstein, v, y):
 
     # Beyond an edge of the band the play operator starts from that edge whatever u0 is,
     # and u0 is left only in the input lags, linearly: one least squares per side.
-    perp = lambda x: x - q @ (q.T @ x) if h.shape[1] else x  # noqa: E731
+    perp = lambda x: x - q @ (q.T @ x) if h.shape[1] else x
     g_perp = perp(g)
 
     def beyond(edge, side):

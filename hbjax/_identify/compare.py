@@ -113,8 +113,8 @@ class Comparison(eqx.Module):
 
     def summary(self) -> str:
         mode = "free run" if self.horizon is None else f"{self.horizon}-step-ahead prediction"
-        lines = [f"compare: {mode}, initial state {self.initial_state!r}, "
-                 f"{self.y.shape[0]} samples",
+        lines = [(f"compare: {mode}, initial state {self.initial_state!r}, "
+                 f"{self.y.shape[0]} samples"),
                  f"{'model':<16}{'fit %':>10}{'RMSE':>12}{'u0':>12}  y0"]
         for name, f, r, s in zip(self.names, self.fits, self.rmses, self.initial_states):
             u0 = "0" if s is None else f"{float(s.u0):.4g}"
@@ -195,7 +195,7 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
         state, kw = None, {}
         if initial_state == "estimate":
             state = estimate_initial_state(mdl, v, y)
-            kw = dict(u0=state.u0, y0=state.y0)
+            kw = {"u0": state.u0, "y0": state.y0}
         if horizon is None:
             y_hat = simulate(mdl, v, **kw)
         else:

@@ -55,12 +55,12 @@ class ResidualAnalysis(eqx.Module):
         out_x = int(np.sum(np.abs(self.cross_correlation) > self.band))
         verdict = "passed" if self.passed else "REJECTED at the 1% level"
         return display.Summary("\n".join([
-            f"resid: {self.residuals.shape[0]} one-step prediction errors "
-            f"(first {self.skip} dropped), lags {self.lags}, 99% band +-{self.band:.4f}",
-            f"  whiteness    : {out_a}/{self.lags} autocorrelations outside the band, "
-            f"Ljung-Box Q = {self.ljung_box:.2f}, p = {self.p_whiteness:.3g}",
-            f"  independence : {out_x}/{self.lags + 1} cross-correlations with past inputs "
-            f"outside the band, statistic {self.independence:.2f}, p = {self.p_independence:.3g}",
+            (f"resid: {self.residuals.shape[0]} one-step prediction errors "
+            f"(first {self.skip} dropped), lags {self.lags}, 99% band +-{self.band:.4f}"),
+            (f"  whiteness    : {out_a}/{self.lags} autocorrelations outside the band, "
+            f"Ljung-Box Q = {self.ljung_box:.2f}, p = {self.p_whiteness:.3g}"),
+            (f"  independence : {out_x}/{self.lags + 1} cross-correlations with past inputs "
+            f"outside the band, statistic {self.independence:.2f}, p = {self.p_independence:.3g}"),
             f"  {verdict}",
         ]))
 

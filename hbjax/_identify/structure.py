@@ -56,10 +56,10 @@ class StructureSelection(eqx.Module):
         return self.models[0]
 
     def summary(self) -> str:
-        lines = [f"select_structure: {len(self.orders)} structures, {self.criterion} criterion, "
-                 f"ranked by {self.rank_by}; best (na, nb, m) = {self.best}",
-                 f"{'na':>3}{'nb':>4}{'m':>3}{'k':>4}{'loss':>12}{'BIC':>12}{'AIC':>12}"
-                 f"{'val. fit %':>12}  result"]
+        lines = [(f"select_structure: {len(self.orders)} structures, {self.criterion} criterion, "
+                 f"ranked by {self.rank_by}; best (na, nb, m) = {self.best}"),
+                 (f"{'na':>3}{'nb':>4}{'m':>3}{'k':>4}{'loss':>12}{'BIC':>12}{'AIC':>12}"
+                 f"{'val. fit %':>12}  result")]
         for (na, nb, m), k, loss, bic, aic, vf, msg in zip(
                 self.orders, self.params, self.loss, self.bic, self.aic,
                 self.validation_fit, self.messages):
