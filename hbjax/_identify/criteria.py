@@ -35,7 +35,12 @@ class Parametrisation(eqx.Module):
     - ``gauge="paper"`` (``h_m`` given): ``P2(-h_m) - P1(h_m) = 1``, solved for ``c2_0``;
     - ``gauge="static_gain"``: ``B(1) = b_1 + ... + b_nb = 1``, solved for ``b_1``.
 
-    ``lower_is_p1`` fixes which branch is the band's lower edge (see :func:`_internal`).
+    ``lower_is_p1`` fixes which branch is the band's lower edge of the labelled band;
+    ``core`` (default ``False``) selects the core operator ``L = min, H = max`` instead
+    (:attr:`band`, :func:`_internal`). ``touch_x`` / ``touch_on`` (optional) add linear
+    equalities ``P1(x_k) = P2(x_k)`` at the scaled inputs ``x_k`` where ``touch_on``: the
+    free parameters are projected onto them (:meth:`feasible`), so a solve stays on the
+    models whose branches touch there.
     Internally the branches are evaluated in ``x = v / scale`` (``scale`` = largest
     ``|v|`` of the data), with scaled coefficients ``c_i scale^i``: the Jacobian columns
     then have comparable sizes, which the Levenberg–Marquardt damping assumes.
@@ -48,6 +53,14 @@ class Parametrisation(eqx.Module):
     scale: Float[Array, ""]
     h_m: Float[Array, ""]
     lower_is_p1: Bool[Array, ""]
+    core: Bool[Array, ""] | bool = False
+    touch_x: Float[Array, " k"] | None = None
+    touch_on: Bool[Array, " k"] | None = None
+
+    @property
+    def band(self):
+        """The band rule code of :func:`_internal`."""
+        return jnp.where(self.core, CORE_BAND, jnp.asarray(self.lower_is_p1).astype(jnp.int32))
 
     @property
     def size(self) -> int:
@@ -75,7 +88,24 @@ class Parametrisation(eqx.Module):
         return g
 
     def theta_scaled(self, z: Float[Array, " q"]) -> Float[Array, " p"]:
-        """Free parameters -> ``[a, b, c1 scale^i, c2 scale^i]`` satisfying the constraint."""
+        """Free parameters -> ``[a, b, c1 scale^i, c2 scale^i]`` satisfying the constraints."""
+        return self._theta_scaled_free(self.feasible(z))
+
+    def feasible(self, z: Float[Array, " q"]) -> Float[Array, " q"]:
+        """The orthogonal projection of ``z`` onto the touch equalities (``z`` itself
+        without any)."""
+        if self.touch_x is None:
+            return z
+        zero = jnp.zeros_like(z)
+        e = self._theta_scaled_free(zero)
+        emat = jax.jacfwd(self._theta_scaled_free)(zero)  # affine map: constant
+        pw = power_columns(self.touch_x, self.m)
+        g = jnp.concatenate([jnp.zeros((pw.shape[0], self.na + self.nb), pw.dtype), pw, -pw],
+                            axis=1) * self.touch_on[:, None]
+        c, d = g @ emat, -(g @ e)
+        return z - jnp.linalg.pinv(c) @ (c @ z - d)
+
+    def _theta_scaled_free(self, z):
         k = self.eliminated
         theta = jnp.concatenate([z[:k], jnp.zeros(1, z.dtype), z[k:]])
         g = self.constraint_row() * self._scaling_inverse()
@@ -192,18 +222,30 @@ def _split(theta, na, nb):
     return theta[:na], theta[na:na + nb], theta[na + nb:na + nb + m], theta[na + nb + m:]
 
 
-def _internal(theta, x, na, nb, lower_is_p1):
+# Band rules (an integer code passed where a boolean ``lower_is_p1`` used to be; ``False``
+# and ``True`` are the two labelled rules).
+LABELLED_P2_LOWER = 0
+LABELLED_P1_LOWER = 1
+CORE_BAND = 2  # L = min(P1, P2), H = max(P1, P2): the operator of hbjax.simulate
+
+
+def _internal(theta, x, na, nb, band):
     """``u``, its derivative ``G`` (T x 2m) with respect to ``(c1, c2)`` and ``g_x``
     (T,) with respect to the input at the source instant, and the source index.
 
-    The band is labelled, not sorted: ``L = P1, H = P2`` when ``lower_is_p1`` else
-    ``L = P2, H = P1``, and :func:`inverted_band_rule` applies where ``L > H``. Where the
-    branches do not cross this is the core operator (``L = min``, ``H = max``) exactly.
-    Sorting instead would let a noisy start whose inactive branch, extrapolated, dips
-    through the active one at a recorded input (common for the closed form at the outer
-    staircase levels) fit that level with the wrong branch: a spurious local minimum that
-    was measured to inflate the refined variance by 30 %. :func:`band_violated` reports
-    a crossing that remains at the end.
+    ``band`` selects the rule (a traced integer, so one compiled solver serves all):
+
+    - :data:`LABELLED_P1_LOWER` / :data:`LABELLED_P2_LOWER` (or ``True`` / ``False``): the
+      band is labelled, not sorted: ``L = P1, H = P2`` or ``L = P2, H = P1``, and
+      :func:`inverted_band_rule` applies where ``L > H``. Where the branches do not cross
+      this is the core operator exactly. Sorting instead would let a noisy start whose
+      inactive branch, extrapolated, dips through the active one at a recorded input
+      (common for the closed form at the outer staircase levels) fit that level with the
+      wrong branch: a spurious local minimum that was measured to inflate the refined
+      variance by 30 %.
+    - :data:`CORE_BAND`: ``L = min(P1, P2)``, ``H = max(P1, P2)``, the operator of
+      :func:`hbjax.simulate` (continuous in the parameters across a crossing). Refinement
+      finishes with it when the labelled optimum's output differs from the core's.
 
     ``u(t)`` equals one branch at one past input ``x(s)``: its derivative with respect to
     the coefficients is the row of powers ``x(s)^i`` on that branch (a gather), which
@@ -212,14 +254,22 @@ def _internal(theta, x, na, nb, lower_is_p1):
     _, _, c1, c2 = _split(theta, na, nb)
     m = c1.shape[0]
     T = x.shape[0]
+    band = jnp.asarray(band).astype(jnp.int32)
+    core = band == CORE_BAND
+    labelled_p1 = band == LABELLED_P1_LOWER
     p1, p2 = polyval_ascending(c1, x), polyval_ascending(c2, x)
-    low = jnp.where(lower_is_p1, p1, p2)
-    high = jnp.where(lower_is_p1, p2, p1)
-    u, src = play_sources(low, high, inverted_band_rule(low, high, x, lower_is_p1))
+    lab_low = jnp.where(labelled_p1, p1, p2)
+    lab_high = jnp.where(labelled_p1, p2, p1)
+    low = jnp.where(core, jnp.minimum(p1, p2), lab_low)
+    high = jnp.where(core, jnp.maximum(p1, p2), lab_high)
+    force = jnp.where(core, -1, inverted_band_rule(lab_low, lab_high, x, labelled_p1))
+    u, src = play_sources(low, high, force)
+    # Which branch is the lower edge, sample by sample.
+    low_is_p1 = jnp.where(core, p1 <= p2, labelled_p1)
     valid = src >= 0
     on_high = src >= T
     idx = jnp.where(valid, jnp.where(on_high, src - T, src), 0)
-    on_p1 = valid & (on_high != lower_is_p1)
+    on_p1 = valid & (on_high != low_is_p1[idx])
     on_p2 = valid & ~on_p1
     xs = x[idx]
     powers = power_columns(xs, m)
@@ -270,7 +320,8 @@ def _residual_and_jacobian(theta, x, y, lower_is_p1, na, nb, criterion):
 def record_residual(theta, x, y, lower_is_p1, na: int, nb: int, criterion: str):
     """Residual of one record: ``y - y_hat`` (prediction errors of eq. (10)) or
     ``y - y_sim`` (output errors), for ``theta = [a, b, c1, c2]`` acting on ``x``, with
-    the labelled band of :func:`_internal` (``lower_is_p1``, a boolean array).
+    the band rule of :func:`_internal` (``lower_is_p1``: a boolean array for the labelled
+    band, or the integer :data:`CORE_BAND`).
 
     Its JVP uses the Jacobian assembled in closed form (the play operator's output is a
     branch value at a source instant), ~3x cheaper than forward mode through the scans.
@@ -309,6 +360,13 @@ def band_violated(model: Hammerstein, recordings, lower_is_p1):
     return jnp.any(jnp.where(lower_is_p1, d, -d) < 0)
 
 
+def branches_meet(model: Hammerstein, recordings):
+    """Whether ``P2 - P1`` changes sign or vanishes over the recorded inputs (the band
+    closes inside the data: a closing hysteresis loop)."""
+    d = jnp.concatenate([model.backlash.p2(v) - model.backlash.p1(v) for v, _ in recordings])
+    return ~(jnp.all(d > 0) | jnp.all(d < 0))
+
+
 def record_outputs(model: Hammerstein, v, y, criterion: str, lower=None):
     """``y_hat`` (one-step-ahead prediction, eq. (10)) or ``y_sim`` (free run) of one
     record, ``u(-1) = 0`` and zero initial conditions as :func:`hbjax.simulate`
@@ -327,7 +385,7 @@ def residuals(z, par: Parametrisation, recordings, criterion: str):
     the same operator as the unscaled branches on ``v``.
     """
     theta = par.theta_scaled(z)
-    return tuple(record_residual(theta, v / par.scale, y, par.lower_is_p1, par.na, par.nb,
+    return tuple(record_residual(theta, v / par.scale, y, par.band, par.na, par.nb,
                                  criterion) for v, y in recordings)
 
 

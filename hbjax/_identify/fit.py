@@ -23,7 +23,11 @@ from .criteria import data_scale, play_sources
 from .._core.model import Hammerstein, lagged
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_criterion, total_samples
-from .refine import RESULTS, RefinementError, refine_traceable
+from .quality import SIM_FIT_FLOOR
+from .refine import (
+    RESULTS, RefinementError, check_floor, describe, extrapolated_ranges, refine_traceable,
+    unidentified_names,
+)
 
 
 class FitResult(eqx.Module):
@@ -32,8 +36,12 @@ class FitResult(eqx.Module):
     - `model`: the best local optimum (lowest cost among converged starts), in the
       static-gain normalisation ``B(1) = 1`` with ``P1`` the branch a rising input drives
       the output onto (see :func:`fit`).
-    - `result`, `message`: result code of that start (:class:`hbjax._identify.refine.RESULTS`).
-    - `stats`, `covariance`, `noise_std`, `branches_cross`: as :class:`RefineResult`.
+    - `result`, `message`: result code of that start (:class:`hbjax._identify.refine.RESULTS`);
+      only stable models whose free-run fit clears the floor are successes, so the best
+      start is chosen among those (``RESULTS.unstable`` / ``poor_fit`` when none is).
+    - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
+      `stable`, `identified` (and `unidentified`), `active_ranges`, `data_range` (and
+      `extrapolated`), `core_finish`: as :class:`RefineResult`, for the chosen start.
     - `starts_costs`: mean squared residual reached from every start, shape ``(starts,)``
       (``inf`` where a start failed).
     - `starts_params`: the local optima, shape ``(starts, p)`` (flatten order).
@@ -49,6 +57,13 @@ class FitResult(eqx.Module):
     covariance: Float[Array, "p p"]
     noise_std: Float[Array, ""]
     branches_cross: Bool[Array, ""]
+    sim_fit: Float[Array, " records"]
+    sim_fit_pooled: Float[Array, ""]
+    stable: Bool[Array, ""]
+    identified: Bool[Array, " p"]
+    active_ranges: Float[Array, "2 2"]
+    data_range: Float[Array, " 2"]
+    core_finish: Bool[Array, ""]
     starts_costs: Float[Array, " starts"]
     starts_params: Float[Array, "starts p"]
     starts_result: Int[Array, " starts"]
@@ -56,13 +71,28 @@ class FitResult(eqx.Module):
     hit_rate: Float[Array, ""]
     best_index: Int[Array, ""]
 
+    criterion: str = eqx.field(static=True, default="prediction")
+    gauge: str = eqx.field(static=True, default="static_gain")
+
     @property
     def message(self) -> str:
-        return RESULTS[self.result] or "success"
+        """The result code in words, with the numbers it rests on."""
+        return describe(self)
 
     @property
     def std(self):
+        """Standard errors (``inf`` for parameters the data do not identify)."""
         return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance), 0.0))
+
+    @property
+    def unidentified(self) -> tuple:
+        """Names of the parameters the data do not identify (``std = inf``)."""
+        return unidentified_names(self.model, self.identified)
+
+    @property
+    def extrapolated(self) -> dict:
+        """Input ranges inside the data where each branch decides no output."""
+        return extrapolated_ranges(self.active_ranges, self.data_range)
 
     def summary(self) -> display.Summary:
         """Estimates, standard errors, 95% intervals, the spread of the local optima over
@@ -133,17 +163,23 @@ def canonical_labels(model: Hammerstein, recordings) -> tuple[Hammerstein, Array
     return Hammerstein(Backlash(c1, c2), model.arx), swap
 
 
-def _swap_covariance(cov, swap, na, nb, m):
+def _swap_perm(na, nb, m):
     off = na + nb
     perm = np.arange(off + 2 * m)
     perm[off:off + m], perm[off + m:] = np.arange(off + m, off + 2 * m), np.arange(off, off + m)
+    return perm
+
+
+def _swap_covariance(cov, swap, na, nb, m):
+    perm = _swap_perm(na, nb, m)
     swapped = cov[perm][:, perm]
     return jnp.where(swap, swapped, cov)
 
 
 def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32,
                   criterion: str = "prediction", max_steps: int = 256,
-                  rtol: float = 1e-7, atol: float = 1e-7) -> FitResult:
+                  rtol: float = 1e-7, atol: float = 1e-7,
+                  min_sim_fit: float = SIM_FIT_FLOOR) -> FitResult:
     """Traceable core of :func:`fit` (recordings a tuple of ``(v, y)`` arrays)."""
     scale = data_scale(recordings)
     keys = jax.random.split(key, starts)
@@ -152,7 +188,8 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         bl = random_backlash(k, m, scale)
         init = Hammerstein(bl, arx_given_backlash(bl, recordings, na, nb))
         return refine_traceable(init, recordings, criterion=criterion, h_m=None,
-                                max_steps=max_steps, rtol=rtol, atol=atol, statistics=False)
+                                max_steps=max_steps, rtol=rtol, atol=atol, statistics=False,
+                                min_sim_fit=min_sim_fit)
 
     res = jax.vmap(one)(keys)
     ok = res.result._value == RESULTS.successful._value
@@ -168,12 +205,18 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
     mean = jnp.sum(jnp.where(ok[:, None], params, 0.0), axis=0) / n_ok
     spread = jnp.sqrt(jnp.sum(jnp.where(ok[:, None], (params - mean) ** 2, 0.0), axis=0) / n_ok)
     hits = ok & (costs <= costs[best] * (1 + 1e-6))
+    perm = _swap_perm(na, nb, m)
+    ident = res.identified[best]
+    active = res.active_ranges[best]
     return FitResult(
         model, jax.tree_util.tree_map(pick, res.result),
         jax.tree_util.tree_map(pick, res.stats),
         _swap_covariance(res.covariance[best], swap, na, nb, m), res.noise_std[best],
-        res.branches_cross[best], costs, params, res.result._value, spread,
-        jnp.sum(hits) / starts, best,
+        res.branches_cross[best], res.sim_fit[best], res.sim_fit_pooled[best],
+        res.stable[best], jnp.where(swap, ident[perm], ident),
+        jnp.where(swap, active[::-1], active), res.data_range[best], res.core_finish[best],
+        costs, params, res.result._value, spread, jnp.sum(hits) / starts, best,
+        criterion, "static_gain",
     )
 
 
@@ -181,8 +224,8 @@ _fit_jit = eqx.filter_jit(fit_traceable)
 
 
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
-        criterion: str = "prediction", max_steps: int = 256, throw: bool = True,
-        progress=True) -> FitResult:
+        criterion: str = "prediction", max_steps: int = 256,
+        min_sim_fit: float = SIM_FIT_FLOOR, throw: bool = True, progress=True) -> FitResult:
     """Identify an HB-Hammerstein model from ordinary recordings (steps, multisines, random
     levels; no special input), by multi-start nonlinear least squares.
 
@@ -191,6 +234,10 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     by least squares given that band, and is refined by :func:`hbjax.refine`'s
     Levenberg–Marquardt; the ``starts`` refinements run together under ``jax.vmap``. The
     best converged local optimum is returned with the spread of all of them.
+
+    A start succeeds only if it converged, its linear block is stable (A3: an unstable
+    optimum is ``RESULTS.unstable``, never returned as a success) and its free-run fit on
+    the estimation data clears `min_sim_fit`; the best such start is returned.
 
     Normalisation (no ``h_m`` is needed): ``B(1) = b_1 + ... + b_nb = 1`` (all the static
     gain in the backlash, assumption A5), and ``P1`` is the branch a rising input drives
@@ -206,7 +253,9 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     - `starts`: number of starts.
     - `criterion`: ``"prediction"`` (equation error) or ``"simulation"`` (output error).
     - `max_steps`: Levenberg–Marquardt steps per start.
-    - `throw`: raise :class:`hbjax.RefinementError` if no start converged.
+    - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data below
+      which a start is not a success (``RESULTS.poor_fit``; default 0 %).
+    - `throw`: raise :class:`hbjax.RefinementError` if no start succeeded.
     - `progress`: a progress bar (``tqdm.auto``, on stderr) once the fit has run for more
       than 2 s on a terminal or in Jupyter; ``False`` silences it, a dict passes options
       to tqdm (``docs/performance.md``).
@@ -237,12 +286,13 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     # The starts run together in one vmapped program: the bar shows the elapsed time.
     with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
         res = _fit_jit(recs, key, na=na, nb=nb, m=m, starts=starts, criterion=criterion,
-                       max_steps=max_steps)
+                       max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit))
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
         raise RefinementError(
-            f"fit: no start converged ({res.message}); try more `starts` or `max_steps`."
+            f"fit: no start succeeded; the best: {res.message}. Try more `starts` or "
+            "`max_steps`, other orders, or criterion='simulation'."
         )
     return res
 

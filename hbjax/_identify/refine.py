@@ -18,13 +18,17 @@ from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import is_traced, positive_float, positive_int
+from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .criteria import (
-    PAPER, PREDICTION, STATIC_GAIN, Parametrisation, band_violated, data_scale, lower_is_p1,
-    residuals,
+    PAPER, PREDICTION, STATIC_GAIN, Parametrisation, branches_meet, data_scale,
+    lower_is_p1, residuals,
 )
 from .._core.model import Hammerstein
-from .._core.params import flatten_params
+from .._core.params import flatten_params, param_names
+from .quality import (
+    SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
+)
 from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 from .sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 
@@ -37,9 +41,24 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "is 0 (paper gauge) or B(1) is 0 (static-gain gauge)"
     )
     branches_cross = (
-        "the refined branches P1 and P2 cross at recorded inputs: the estimate is not a "
-        "hysteresis band over the data (too little excitation of the inactive branch, or "
-        "a wrong branch degree m)"
+        "the refined branches P1 and P2 cross at recorded inputs where the crossing decides "
+        "the output: the estimate's labelled band and the core operator (L = min, H = max) "
+        "disagree on the data"
+    )
+    unstable = (
+        "the identified linear block is unstable (a pole on or outside the unit circle; "
+        "assumption A3): the model cannot be simulated; try other orders, more data, or "
+        "criterion='simulation'"
+    )
+    poor_fit = (
+        "the identified model's free-run simulation fit on its own estimation data is below "
+        "the floor (hbjax._identify.quality.SIM_FIT_FLOOR, 0 %: worse than each record's "
+        "mean); see .sim_fit; try other orders (na, nb, m) or criterion='simulation'"
+    )
+    closing_loop = (
+        "the branches meet or cross inside the recorded input range (a closing hysteresis "
+        "loop) and the model does not reproduce the data (free-run fit below the floor, "
+        "see .sim_fit): more excitation around the meeting point or another degree m"
     )
 
 
@@ -58,8 +77,22 @@ class RefineResult(eqx.Module):
     - `covariance`: ``sigma^2 (J^T J)^+`` mapped to the normalised parameters (order
       a, b, c1, c2 of :func:`hbjax.flatten_params`); singular along the constraint.
     - `noise_std`: ``sqrt(SSR / (N - q))``, ``q`` the number of free parameters.
-    - `branches_cross`: whether the band's lower edge exceeds its upper edge at some
-      recorded input (then `result` is ``RESULTS.branches_cross``).
+    - `branches_cross`: whether the branches cross or meet at some recorded input
+      (informational: the model is the core operator ``L = min, H = max`` on the data).
+    - `sim_fit`: free-run simulation fit (%) on each estimation record,
+      ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)``, simulated from rest as
+      :func:`hbjax.simulate`; `sim_fit_pooled` over all records (``RESULTS.poor_fit``
+      below :data:`hbjax._identify.quality.SIM_FIT_FLOOR`).
+    - `stable`: whether ``A`` has all its poles inside the unit circle (A3;
+      ``RESULTS.unstable`` otherwise).
+    - `identified`: per parameter (flatten order), whether the data identify it;
+      `unidentified` lists the names of those that are not (their `std` is ``inf``).
+    - `active_ranges`: ``[[lo, hi] of P1, [lo, hi] of P2]``, the inputs at which each
+      branch decides the output (NaN: never); `data_range`: ``[min v, max v]``;
+      `extrapolated` says, per branch, where its values are extrapolations the data do not
+      constrain directly.
+    - `core_finish`: whether the solve was finished on the core operator because the
+      labelled band's optimum crossed where the crossing decides the output.
     - `criterion`, `gauge`: what was minimised and how the gain ambiguity was fixed.
     """
 
@@ -69,17 +102,25 @@ class RefineResult(eqx.Module):
     covariance: Float[Array, "p p"]
     noise_std: Float[Array, ""]
     branches_cross: Bool[Array, ""]
+    sim_fit: Float[Array, " records"]
+    sim_fit_pooled: Float[Array, ""]
+    stable: Bool[Array, ""]
+    identified: Bool[Array, " p"]
+    active_ranges: Float[Array, "2 2"]
+    data_range: Float[Array, " 2"]
+    core_finish: Bool[Array, ""]
     criterion: str = eqx.field(static=True)
     gauge: str = eqx.field(static=True)
 
     @property
     def message(self) -> str:
-        """The result code in words (concrete results only)."""
-        return RESULTS[self.result] or "success"
+        """The result code in words, with the numbers it rests on (concrete results)."""
+        return describe(self)
 
     @property
     def std(self) -> Float[Array, " p"]:
-        """Standard errors (square roots of the covariance diagonal)."""
+        """Standard errors (square roots of the covariance diagonal; ``inf`` for a
+        parameter the data do not identify)."""
         return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance, axis1=-2, axis2=-1), 0.0))
 
     def summary(self) -> display.Summary:
@@ -92,6 +133,18 @@ class RefineResult(eqx.Module):
 
     def _repr_html_(self) -> str:
         return self.summary()._repr_html_()
+
+    @property
+    def unidentified(self) -> tuple:
+        """Names (:func:`hbjax.param_names`) of the parameters the data do not identify."""
+        return unidentified_names(self.model, self.identified)
+
+    @property
+    def extrapolated(self) -> dict:
+        """``{"P1": [(lo, hi), ...], "P2": [...]}``: input ranges inside the data where a
+        branch never decides the output (its values there are extrapolations)."""
+        return extrapolated_ranges(self.active_ranges, self.data_range)
+
 
 
 def gauge_transform(model: Hammerstein, par: Parametrisation):
@@ -118,7 +171,7 @@ def make_parametrisation(model, recordings, h_m, lower=True) -> Parametrisation:
     gauge = STATIC_GAIN if h_m is None else PAPER
     h = jnp.asarray(0.0 if h_m is None else h_m, jnp.float64)
     return Parametrisation(model.arx.na, model.arx.nb, model.backlash.m, gauge,
-                           data_scale(recordings), h, jnp.asarray(lower))
+                           data_scale(recordings), h, jnp.asarray(lower), jnp.asarray(False))
 
 
 def _flat_residuals(z, par, recordings, criterion):
@@ -176,6 +229,37 @@ def summarise(par, z, ssr, ssr0, jtj, n, result, steps, ok):
     return par.model(z), result, stats, cov, jnp.sqrt(noise_var)
 
 
+def describe(res) -> str:
+    """The result code in words; for the quality codes, with the numbers."""
+    text = RESULTS[res.result] or "success"
+    if res.result == RESULTS.poor_fit or res.result == RESULTS.closing_loop:
+        fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(res.sim_fit)))
+        text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, per record: "
+                 f"{fits}; floor {SIM_FIT_FLOOR:g} %)")
+    elif res.result == RESULTS.unstable:
+        a = np.asarray(res.model.arx.a)
+        radius = float(np.max(np.abs(np.roots(np.concatenate([[1.0], a]))))) if a.size else 0.0
+        text += f" (largest pole modulus {radius:.6g})"
+    return text
+
+
+def unidentified_names(model, identified) -> tuple:
+    names = param_names(model)
+    return tuple(n for n, ok in zip(names, np.asarray(identified)) if not ok)
+
+
+def extrapolated_ranges(active, data_range) -> dict:
+    active, (lo, hi) = np.asarray(active), np.asarray(data_range)
+    out = {}
+    for k, name in enumerate(("P1", "P2")):
+        a, b = active[k]
+        if not np.isfinite(a):
+            out[name] = [(float(lo), float(hi))]
+            continue
+        out[name] = [r for r in ((float(lo), float(a)), (float(b), float(hi))) if r[1] > r[0]]
+    return out
+
+
 def _solve_full(par, z0, recordings, criterion, **options):
     """Levenberg–Marquardt on the full residual: ``(z, result, steps, SSR, SSR0, J^T J)``."""
     sol = solve(par, z0, recordings, criterion, **options)
@@ -203,9 +287,97 @@ def _solve_prediction(par, z0, recordings, **options):
     return z, result, steps, ssr, ssr0, jtj
 
 
+def _solve(par, z0, recordings, criterion, statistics, options):
+    """One Levenberg–Marquardt solve under ``par``'s band rule:
+    ``(z, result, steps, SSR, SSR0, J^T J)``."""
+    if criterion == PREDICTION and statistics and worth_it(par.na, par.nb, par.m):
+        return _solve_prediction(par, z0, recordings, **options)
+    return _solve_full(par, z0, recordings, criterion, **options)
+
+
+# Touch equalities the labelled solve may add (one per round) before the core finish.
+MAX_TOUCHES = 3
+
+
+def _touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion,
+                          statistics, options):
+    """Keep the labelled optimum where its branches cross only where no output depends on
+    it; otherwise constrain the branches to touch (``P1(x) = P2(x)``) at the input of the
+    first sample whose output the crossing changes, and solve again from the projection
+    (an active set, up to :data:`MAX_TOUCHES` levels: the constrained optimum, on which
+    the labelled and the core operators agree). If the crossing still decides outputs
+    then (the data want a closing loop), finish on the core operator from there."""
+    ok = optx.RESULTS.successful
+    par = eqx.tree_at(lambda p: (p.touch_x, p.touch_on), par,
+                      (jnp.zeros(MAX_TOUCHES), jnp.zeros(MAX_TOUCHES, bool)),
+                      is_leaf=lambda x: x is None)
+    # The start's orientation of the band may be the wrong one (its branches crossed on
+    # average over the data): take the optimum's, and solve again if it flips.
+    lower = lower_is_p1(par.model(z), recordings)
+    flip = (lower != par.lower_is_p1) & (result == ok)
+    par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower)
+
+    def reoriented(_):
+        z2, res2, steps2, ssr2, _, jtj2 = _solve(par, z, recordings, criterion, statistics,
+                                                 options)
+        return z2, res2, steps + steps2, ssr2, jtj2
+
+    z, result, steps, ssr, jtj = jax.lax.cond(flip, reoriented,
+                                              lambda _: (z, result, steps, ssr, jtj), None)
+
+    def check(par, z):
+        return core_consistent(par.theta_scaled(z), par.band, recordings, par.scale,
+                               par.na, par.nb)
+
+    def again(state):
+        par, z, result, steps, ssr, jtj, k, consistent, _ = state
+        return ~consistent & (result == ok) & (k < MAX_TOUCHES)
+
+    def touch(state):
+        par, z, result, steps, ssr, jtj, k, consistent, x_bad = state
+        par = eqx.tree_at(lambda p: (p.touch_x, p.touch_on), par,
+                          (par.touch_x.at[k].set(x_bad), par.touch_on.at[k].set(True)))
+        z2, res2, steps2, ssr2, _, jtj2 = _solve(par, par.feasible(z), recordings, criterion,
+                                                 statistics, options)
+        consistent, x_bad = check(par, z2)
+        return par, z2, res2, steps + steps2, ssr2, jtj2, k + 1, consistent, x_bad
+
+    consistent, x_bad = check(par, z)
+    state = (par, z, result, steps, ssr, jtj, jnp.asarray(0), consistent, x_bad)
+    par, z, result, steps, ssr, jtj, _, consistent, _ = jax.lax.while_loop(again, touch, state)
+    need_core = ~consistent & (result == ok)
+    core_par = eqx.tree_at(lambda p: (p.core, p.touch_on), par,
+                           (jnp.asarray(True), jnp.zeros(MAX_TOUCHES, bool)))
+
+    def on_core(_):
+        z2, res2, steps2, ssr2, _, jtj2 = _solve(core_par, z, recordings, criterion,
+                                                 statistics, options)
+        return z2, res2, steps + steps2, ssr2, jtj2
+
+    def as_is(_):
+        return z, result, steps, ssr, jtj
+
+    z, result, steps, ssr, jtj = jax.lax.cond(need_core, on_core, as_is, None)
+    par = eqx.tree_at(lambda p: (p.core, p.touch_on), par,
+                      (need_core, par.touch_on & ~need_core))
+    # The touches are active inequalities, not knowledge: the covariance is that of the
+    # unconstrained parameters at the constrained optimum (a constrained Gauss-Newton
+    # matrix would claim the extrapolated branch pinned by the touch).
+    free_par = eqx.tree_at(lambda p: p.touch_on, par, jnp.zeros(MAX_TOUCHES, bool))
+    z = par.feasible(z)
+
+    def unconstrained(_):
+        jac = jax.jacfwd(_flat_residuals)(z, free_par, recordings, criterion)
+        return jac.T @ jac
+
+    jtj = jax.lax.cond(jnp.any(par.touch_on), unconstrained, lambda _: jtj, None)
+    return free_par, z, result, steps, ssr, jtj
+
+
 def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "prediction",
                      h_m=None, max_steps: int = 256, rtol: float = 1e-7,
-                     atol: float = 1e-7, statistics: bool = True) -> RefineResult:
+                     atol: float = 1e-7, statistics: bool = True,
+                     min_sim_fit: float = SIM_FIT_FLOOR) -> RefineResult:
     """Traceable core of :func:`refine`: no checks, never raises, result code in `.result`.
 
     With ``statistics=True`` (default) the prediction criterion is solved on the Gram matrix
@@ -214,6 +386,12 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     (``1 + na + 2 m nb <= 32``); ``statistics=False`` always takes a pass per
     Levenberg–Marquardt step (used by multi-start fitting under ``vmap``, where the
     fallback's ``lax.cond`` would run both branches).
+
+    Two stages: the labelled band (:func:`hbjax._identify.criteria._internal`) from the
+    start; then, only if its optimum's play-operator output differs from the core
+    operator's on the data (an extrapolated branch crossing the active one where that
+    decides the output), the core operator ``L = min, H = max`` from there, so that the
+    returned model's fit is always the fit of :func:`hbjax.simulate`'s model.
 
     ``recordings`` must already be a tuple of ``(v, y)`` float64 array pairs. Works under
     ``jax.jit`` and ``jax.vmap`` (e.g. over noise realisations with the inputs shared);
@@ -225,28 +403,57 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
     z0 = par.free(flatten_params(start))
     options = dict(max_steps=max_steps, rtol=rtol, atol=atol)
-    if criterion == PREDICTION and statistics and worth_it(par.na, par.nb, par.m):
-        z, result, steps, ssr, ssr0, jtj = _solve_prediction(par, z0, recordings, **options)
-    else:
-        z, result, steps, ssr, ssr0, jtj = _solve_full(par, z0, recordings, criterion, **options)
+    z, result, steps, ssr, ssr0, jtj = _solve(par, z0, recordings, criterion, statistics,
+                                              options)
+    par, z, result, steps, ssr, jtj = _touch_where_decisive(par, z, result, steps, ssr, jtj,
+                                                            recordings, criterion,
+                                                            statistics, options)
     n = total_samples(recordings)
     fitted, result, stats, cov, noise_std = summarise(par, z, ssr, ssr0, jtj, n, result,
                                                       steps, ok)
-    return finish(fitted, result, stats, cov, noise_std, par, recordings, criterion)
+    return finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jtj,
+                  min_sim_fit)
 
 
-def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion):
-    """The result, failing with ``branches_cross`` where the band is not a band."""
-    crossed = band_violated(fitted, recordings, par.lower_is_p1)
-    result = RESULTS.where(crossed & (result == RESULTS.successful), RESULTS.branches_cross,
-                           result)
-    return RefineResult(fitted, result, stats, cov, noise_std, crossed, criterion, par.gauge)
+def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jtj=None,
+           min_sim_fit=SIM_FIT_FLOOR):
+    """The result with its quality checks, first failing one wins after the solver's own
+    code: ``branches_cross`` (a labelled band whose crossing decides an output; refine's
+    core finish never leaves one), ``unstable`` (A3), ``closing_loop`` / ``poor_fit``
+    (free-run fit on the estimation data below ``min_sim_fit``; ``closing_loop`` when the
+    branches meet inside the data). Parameters the Gauss-Newton matrix ``jtj`` does not
+    identify get ``inf`` variance."""
+    theta_s = par.free(flatten_params(fitted))
+    consistent, _ = core_consistent(par.theta_scaled(theta_s), par.band, recordings, par.scale,
+                                 par.na, par.nb)
+    fits, pooled, active = simulation_fit(fitted, recordings)
+    stable = is_stable(fitted.arx.a)
+    if jtj is None:
+        ident = jnp.ones(par.size, bool)
+    else:
+        ident = identified(jtj, par.jacobian())
+        cov = mark_unidentified(cov, ident)
+    closing = branches_meet(fitted, recordings)
+    good = result == RESULTS.successful
+    result = RESULTS.where(good & ~consistent, RESULTS.branches_cross, result)
+    good = result == RESULTS.successful
+    result = RESULTS.where(good & ~stable, RESULTS.unstable, result)
+    good = result == RESULTS.successful
+    poor = ~(pooled >= min_sim_fit)
+    result = RESULTS.where(good & poor & closing, RESULTS.closing_loop, result)
+    result = RESULTS.where(good & poor & ~closing, RESULTS.poor_fit, result)
+    v_all = jnp.concatenate([v for v, _ in recordings])
+    data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
+    return RefineResult(fitted, result, stats, cov, noise_std, closing, fits, pooled, stable,
+                        ident, active, data_range, jnp.asarray(par.core), criterion,
+                        par.gauge)
 
 
 @eqx.filter_jit
-def _refine_jit(model, recordings, criterion, h_m, max_steps, rtol, atol):
+def _refine_jit(model, recordings, criterion, h_m, max_steps, rtol, atol, min_sim_fit):
     return refine_traceable(model, recordings, criterion=criterion, h_m=h_m,
-                            max_steps=max_steps, rtol=rtol, atol=atol)
+                            max_steps=max_steps, rtol=rtol, atol=atol,
+                            min_sim_fit=min_sim_fit)
 
 
 @eqx.filter_jit
@@ -278,6 +485,16 @@ def refine_batch(models: Hammerstein, inputs, outputs, *, criterion: str = "pred
     return jax.lax.map(one, (models, tuple(outputs)), batch_size=batch_size)
 
 
+def check_floor(min_sim_fit):
+    """``min_sim_fit``: a finite real number (percent; may be negative) or a traced value."""
+    if is_traced(min_sim_fit):
+        return min_sim_fit
+    if isinstance(min_sim_fit, bool) or not isinstance(min_sim_fit, (int, float, np.number)) \
+            or not np.isfinite(min_sim_fit):
+        raise ValueError(f"`min_sim_fit` must be a finite number (percent), got {min_sim_fit!r}.")
+    return float(min_sim_fit)
+
+
 def _check_gauge(model, h_m):
     if h_m is None:
         gain = float(np.sum(np.asarray(model.arx.b)))
@@ -304,7 +521,7 @@ def _check_gauge(model, h_m):
 
 def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m=None,
            max_steps: int = 256, rtol: float = 1e-7, atol: float = 1e-7,
-           throw: bool = True) -> RefineResult:
+           min_sim_fit: float = SIM_FIT_FLOOR, throw: bool = True) -> RefineResult:
     """Refine an HB-Hammerstein model on recorded data by nonlinear least squares.
 
     Minimises, with :class:`optimistix.LevenbergMarquardt` through the differentiable
@@ -326,13 +543,25 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       backlash, assumption A5 makes it possible); compare with
       :func:`hbjax.normalise_static_gain`.
 
-    The band stays a band: the branch that is lower on average over the data for the
-    (normalised) initial model is the lower edge ``L`` throughout the solve (a labelled
-    band, smooth in the parameters, where ``L = min, H = max`` would have a kink each time
-    an estimate's branches touch at a recorded input and trap the solver there). If the
-    refined branches cross at a recorded input the result is ``RESULTS.branches_cross``
-    (``.branches_cross`` is True); otherwise the returned model is exactly the core's
-    ``L = min(P1, P2)``, ``H = max(P1, P2)`` operator on the data. Orders are static.
+    The band: the solve starts on a labelled band (the branch that is lower on average
+    over the data for the normalised initial model is the lower edge ``L``; where an
+    iterate's branches cross the output follows the branch of the input's direction of
+    motion), smooth in the parameters and free of the spurious minima that sorting the
+    closed form's crossed extrapolations causes. A branch's values where it never decides
+    the output (the other side of the paper's staircase) are extrapolations and may cross
+    the other branch freely; only where a crossing changes the output of the core operator
+    ``L = min(P1, P2)``, ``H = max(P1, P2)`` on the data does the solve finish on the core
+    operator from there. The returned model is therefore always exactly
+    :func:`hbjax.simulate`'s model on the data; ``.extrapolated`` lists the branch ranges
+    that are extrapolations, ``.branches_cross`` whether the branches meet at a recorded
+    input. Orders are static.
+
+    The result is not ``successful`` (and ``throw=True`` raises) when the solver failed,
+    when ``A`` is unstable (``RESULTS.unstable``, assumption A3), or when the free-run fit
+    on the estimation records pooled is below `min_sim_fit` (``RESULTS.poor_fit``, or
+    ``RESULTS.closing_loop`` when the branches meet inside the data). Parameters the data
+    do not identify (rank-deficient Gauss-Newton matrix: a branch that never decides the
+    output, a constant input) get ``std = inf`` and are listed in ``.unidentified``.
 
     **Arguments:**
 
@@ -344,12 +573,16 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     - `h_m`: amplitude of the paper's design, selects the normalisation (above).
     - `max_steps`, `rtol`, `atol`: Levenberg–Marquardt limits and tolerances (in the
       scaled free parameters and residuals).
-    - `throw`: raise :class:`RefinementError` if the solve did not converge (default);
+    - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data
+      (default :data:`hbjax._identify.quality.SIM_FIT_FLOOR`, 0 %).
+    - `throw`: raise :class:`RefinementError` if the result is not a success (default);
       otherwise inspect ``.result`` / ``.message``.
 
-    **Returns:** a :class:`RefineResult`.
+    **Returns:** a :class:`RefineResult` (``print(result)`` shows the fit, the standard
+    errors, unidentified parameters and extrapolated ranges).
     """
     require_x64("refine")
+    ensure_compilation_cache()
     check_model(model)
     check_criterion(criterion)
     recs = as_recordings(recordings)
@@ -363,10 +596,15 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         )
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
         _check_gauge(model, h_m)
-    res = _refine_jit(model, recs, criterion, h_m, max_steps, positive_float(rtol, "rtol"), positive_float(atol, "atol"))
+    min_sim_fit = check_floor(min_sim_fit)
+    res = _refine_jit(model, recs, criterion, h_m, max_steps, positive_float(rtol, "rtol"),
+                      positive_float(atol, "atol"), min_sim_fit)
     if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
+        quality = res.result in (RESULTS.unstable, RESULTS.poor_fit, RESULTS.closing_loop,
+                                 RESULTS.branches_cross)
         raise RefinementError(
-            f"refine ({criterion} criterion) did not converge: {res.message} "
+            f"refine ({criterion} criterion) "
+            f"{'gave an unacceptable model' if quality else 'did not converge'}: {res.message} "
             f"(steps {int(res.stats['steps'])}, mean squared residual "
             f"{float(res.stats['cost']):.4g}); pass throw=False to inspect the result."
         )

@@ -57,7 +57,7 @@ def statistics(z, par: Parametrisation, recordings):
     na, nb, m = par.na, par.nb, par.m
     gram, codes, ssr = 0.0, [], 0.0
     for v, y in recordings:
-        _, g, _, idx = _internal(theta, v / par.scale, na, nb, par.lower_is_p1)
+        _, g, _, idx = _internal(theta, v / par.scale, na, nb, par.band)
         cols = ([y[:, None]] + [lagged_rows(y, i + 1)[:, None] for i in range(na)]
                 + [lagged_rows(g, j + 1) for j in range(nb)])
         design = jnp.concatenate(cols, axis=1)
