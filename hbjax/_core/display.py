@@ -349,6 +349,7 @@ FIGURES = (
     ("gauge", "gauge"),
     ("noise_std", "noise std (equation error)"),
     ("sim_fit_pooled", "free-run fit on estimation data (%)"),
+    ("sim_fit", "free-run fit per estimation record (%)"),
     ("stable", "A stable (A3)"),
     ("branches_cross", "branches cross on the data"),
     ("stats.cost", "cost (mean squared residual)"),

@@ -12,6 +12,7 @@ import optimistix as optx
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import is_traced, positive_float, positive_int
+from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .criteria import PREDICTION, internal_signal, lagged_rows, lower_is_p1
 from .._core.model import Hammerstein
@@ -92,7 +93,7 @@ def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: 
     ssr, ssr0, jtj = residual_summary(par, z0, r, jac, recordings, PREDICTION)
     fitted, result, stats, cov, noise_std = summarise(
         par, z, ssr, ssr0, jtj, r.shape[0], sol.result, sol.stats["num_steps"], ok & ok_end)
-    return finish(fitted, result, stats, cov, noise_std, par, recordings, PREDICTION)
+    return finish(fitted, result, stats, cov, noise_std, par, recordings, PREDICTION, jtj)
 
 
 _separable_jit = jax.jit(separable_traceable, static_argnames=("max_steps", "rtol", "atol"))
@@ -116,6 +117,7 @@ def separable_ls(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 2
     projected-problem steps; the covariance is that of the full parameter vector).
     """
     require_x64("separable_ls")
+    ensure_compilation_cache()
     check_model(model)
     recs = as_recordings(recordings)
     h_m = check_h_m(h_m)
