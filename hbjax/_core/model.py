@@ -86,7 +86,9 @@ class Hammerstein(AbstractModel):
         if not isinstance(self.arx, ARX):
             raise TypeError(f"`arx` must be an hbjax.ARX, got {type(self.arx).__name__}.")
 
-    def simulate_trajectory(self, v, noise, u0):
+    def simulate_trajectory(self, v, noise, u0, y0=None):
+        # `y0` (output lags, most recent first) starts the recursion from a past with
+        # u(-j) = u0 (hbjax.simulate); None keeps the paper's zero initial conditions.
         # One scalar carry per lag (a tuple, not a shifted array): orders are static, so
         # the scan body is straight-line code and vmapping over a trailing batch axis of
         # time-major arrays keeps every carry a contiguous vector.
@@ -107,7 +109,11 @@ class Hammerstein(AbstractModel):
             u_lags = (u_t,) + u_lags[:-1]
             return (u_t, y_lags, u_lags), y_t
 
-        init = (jnp.asarray(u0, v.dtype), (zero,) * na, (zero,) * nb)
+        u_init = jnp.asarray(u0, v.dtype)
+        if y0 is None:
+            init = (u_init, (zero,) * na, (zero,) * nb)
+        else:
+            init = (u_init, tuple(y0[i].astype(v.dtype) for i in range(na)), (u_init,) * nb)
         # Measured on CPU (benchmarks/simulate.py, 1000 x 10 000 time-major): unrolling two
         # samples saves 15-25% for n >= 2 but costs 70% for a first-order block.
         unroll = 2 if max(na, nb) >= 2 else 1

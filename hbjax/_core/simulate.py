@@ -70,9 +70,10 @@ def _play(backlash, v, u0):
 
 @eqx.filter_jit
 def _simulate(model, v, noise, u0, y0=None, valid=None):
-    if y0 is not None:  # a past (y0, u0) is a known equation error on the first samples
-        noise = noise + injection(model, y0, u0, v.shape[0]).astype(noise.dtype)
-    y = model.simulate_trajectory(v, noise, u0)
+    if y0 is None:
+        y = model.simulate_trajectory(v, noise, u0)
+    else:  # the past enters the scan's initial carry: no extra pass over the record
+        y = model.simulate_trajectory(v, noise, u0, y0=y0)
     # Fused with the scan: the eager divergence check costs no extra pass over y.
     finite = jnp.isfinite(y)
     if valid is not None:  # the padded tail of a bucketed record does not count
