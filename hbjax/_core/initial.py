@@ -9,8 +9,10 @@ recursion of eq. (10) only through the first ``n = max(na, nb)`` samples, as the
     ``d(t) = -sum_{i > t} a_i y0[i-t-1] + sum_{j > t} b_j u0``,  ``t = 0..n-1``,
 
 so a run from that past equals a run from the paper's zero initial conditions with ``d``
-added to the equation error. That keeps the simulator's scan untouched (same speed, same
-jit/vmap/grad behaviour) and makes the output affine in ``y0``.
+added to the equation error: the output is affine in ``y0`` (the least squares of
+:func:`estimate_initial_state`), and the predictor adds ``d`` to its output. The free run
+itself starts its scan from the lags (``Hammerstein.simulate_trajectory(..., y0=...)``),
+which costs nothing extra.
 """
 
 import equinox as eqx
