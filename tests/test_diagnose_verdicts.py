@@ -1,0 +1,140 @@
+"""Honest verdicts of hbjax.diagnose: consistent / explained / structured but unexplained,
+failed candidates listed with their reason, a held-out part as excited as the fitting part,
+and recorded channels found as a missing input (CI-sized records)."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hbjax
+
+N = 1200
+
+
+def _system():
+    return hbjax.Hammerstein(hbjax.Backlash(c1=jnp.array([-0.3, 1.0]), c2=jnp.array([0.3, 1.0])),
+                             hbjax.ARX(a=jnp.array([-0.7]), b=jnp.array([0.3])))
+
+
+def _plateaus(rng, n, hold=20, amp=2.0):
+    return np.repeat(rng.uniform(-amp, amp, n // hold + 1), hold)[:n]
+
+
+def _aux_record(seed, quiet_tail=0):
+    """The system driven by ``v`` plus a second recorded input ``w`` through the same
+    dynamics (``y = B/A u + b_w/A w + xi/A``); the last ``quiet_tail`` samples at rest."""
+    rng = np.random.default_rng(seed)
+    model = _system()
+    v = _plateaus(rng, N)
+    w = _plateaus(rng, N, hold=35, amp=1.0)
+    if quiet_tail:
+        v[-quiet_tail:] = v[-quiet_tail - 1]
+        w[-quiet_tail:] = 0.0
+    xi = 0.01 * rng.standard_normal(N)
+    y_v = np.asarray(hbjax.simulate(model, v, xi))
+    aux = hbjax.Hammerstein(hbjax.Backlash(c1=jnp.array([0.0, 1.0]), c2=jnp.array([0.0, 1.0])),
+                            hbjax.ARX(a=jnp.array([-0.7]), b=jnp.array([0.15])))
+    return model, v, y_v + np.asarray(hbjax.simulate(aux, w)), w
+
+
+@pytest.fixture(scope="module")
+def with_channel():
+    model, v, y, w = _aux_record(0, quiet_tail=300)
+    rng = np.random.default_rng(1)
+    distractor = rng.standard_normal(N)
+    rec = hbjax.Recording(v=v, y=y, channels={"aux": w, "unrelated": distractor})
+    return model, v, y, w, hbjax.diagnose(model, rec, progress=False)
+
+
+def test_recorded_channel_is_named_as_missing_input(with_channel):
+    model, v, y, w, d = with_channel
+    assert d.verdict == "explained" and d.mismatch
+    f = d.best
+    assert f.effect == "missing_input", d.summary()
+    assert f.parameters["channel"] == "aux" and f.parameters["channels"] == ["aux"]
+    assert f.metric == "simulation" and f.fit_after > f.fit_before + 10
+    assert f.evidence["dm_z"] > 2 and f.evidence["dm_z_vs_no_channel"] > 2
+    # the fitted extension runs on the record and reproduces the held-out output
+    y_ext = np.asarray(hbjax.simulate(f.model, v))
+    n = d.n_fit
+    fit = 100 * (1 - np.linalg.norm(y[n:] - y_ext[n:]) / np.linalg.norm(y[n:] - y[n:].mean()))
+    assert fit == pytest.approx(f.fit_after, abs=1e-6)
+    assert fit > 90
+    assert "missing input" in f.physics and "'aux'" in f.physics
+    json.dumps(d.to_dict())
+
+
+def test_quiet_tail_does_not_decide(with_channel):
+    _, v, y, _, d = with_channel
+    # the requested 30% tail holds 300 samples at rest: the cut moves earlier until the
+    # held-out part is excited like the fitting part
+    assert d.split["moved"] and d.n_holdout > round(0.3 * N)
+    assert d.split["requested_ratio"]["ratio"] < 0.7 <= d.split["ratio"]["ratio"]
+    for x in (v, y):
+        assert np.std(x[d.n_fit:]) >= 0.7 * np.std(x[:d.n_fit])
+    assert "moved earlier" in str(d.summary())
+
+
+def test_without_the_channel_the_structure_is_not_consistent():
+    model, v, y, _ = _aux_record(0)
+    d = hbjax.diagnose(model, v, y, effects=["parameter_mismatch"], progress=False)
+    rt = d.residual_tests
+    assert rt["whiteness"]["p_value"] < 1e-3 or rt["independence"]["p_value"] < 1e-3
+    # never "consistent" while a residual test rejects
+    assert d.verdict in ("explained", "unexplained") and d.mismatch
+    if d.verdict == "unexplained":
+        assert d.findings == [] and d.unexplained["rejected"]
+        assert d.unexplained["regime"]["variable"] in (
+            "output level", "input level", "input rate", "motion direction", "time")
+        assert "structured but unexplained" in str(d.summary())
+
+
+def test_clean_record_is_consistent():
+    rng = np.random.default_rng(3)
+    model = _system()
+    v = _plateaus(rng, N)
+    y = np.asarray(hbjax.simulate(model, v, 0.01 * rng.standard_normal(N)))
+    d = hbjax.diagnose(model, v, y, effects=["parameter_mismatch"], progress=False)
+    assert d.verdict == "consistent" and not d.mismatch and d.best is None
+    assert not d.split["moved"] and d.failed == {}
+    assert "Verdict: consistent" in str(d.summary())
+
+
+class NaNOffset(hbjax.AbstractEffect):
+    """A toy effect whose output term is NaN for every parameter value."""
+
+    base: hbjax.Hammerstein
+    level: jnp.ndarray
+    name = "nan_offset"
+    n_params = 1
+
+    def output_term(self, v, u, y_lin):
+        return jnp.sqrt(-1.0 - self.level**2) + 0.0 * y_lin
+
+    def describe(self, ctx, info):
+        return {"physics": "never reported", "where": {}, "parameters": {}}
+
+
+def test_failed_candidate_is_listed_with_why():
+    rng = np.random.default_rng(4)
+    model = _system()
+    v = _plateaus(rng, N)
+    y = np.asarray(hbjax.simulate(model, v, 0.01 * rng.standard_normal(N)))
+    d = hbjax.diagnose(model, v, y, effects=["parameter_mismatch", NaNOffset], progress=False)
+    assert "nan_offset" in d.failed and ("NaN" in d.failed["nan_offset"] or "non-finite" in d.failed["nan_offset"])
+    assert all(f.effect != "nan_offset" for f in d.findings)
+    assert d.candidates["nan_offset"]["decision"].startswith("failed")
+    assert "Failed candidates: nan_offset" in str(d.summary())
+
+
+def test_bad_channels():
+    model, v, y, _ = _aux_record(0)
+    with pytest.raises(ValueError, match="channel 'w'"):
+        hbjax.diagnose(model, v, y, channels={"w": np.zeros(10)}, progress=False)
+    with pytest.raises(TypeError, match="`channels`"):
+        hbjax.diagnose(model, v, y, channels=[1, 2], progress=False)
+    with pytest.raises(ValueError, match="`split`"):
+        hbjax.diagnose(model, v, y, split="random", progress=False)
