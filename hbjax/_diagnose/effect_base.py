@@ -262,8 +262,18 @@ def term_error(cls, lay: Layout, theta, params, consts, v, y, criterion="predict
     """Fitting criterion of a generic effect: the prediction error ``A (y - y_sim)``
     (``criterion="simulation"``: the output error ``y - y_sim``) of ``cls`` with base
     ``theta`` and ``params``, differentiable in both (the backlash output is a gather of
-    branch values, ``y_lin = (B / A) u`` by FFT, as in the fast kernel)."""
-    effect = cls.from_params(base_model(lay, theta), params)
+    branch values, ``y_lin = (B / A) u`` by FFT, as in the fast kernel). An effect class
+    that acts inside the recursion gives its own criterion as a classmethod
+    ``fit_error(lay, theta, params, consts, v, y, criterion, u0)``."""
+    own = getattr(cls, "fit_error", None)
+    if own is not None:
+        return own(lay, theta, params, consts, v, y, criterion, u0)
+    return effect_error(cls.from_params(base_model(lay, theta), params), lay, theta, consts,
+                        v, y, criterion, u0)
+
+
+def effect_error(effect, lay: Layout, theta, consts, v, y, criterion="prediction", u0=0.0):
+    """:func:`term_error` of an effect instance (its base is ``theta``)."""
     a, b = lay.get(theta, "a"), lay.get(theta, "b")
     u = play_gather(lay, theta, consts, v, u0)
     u = u + effect.input_term(v, u)

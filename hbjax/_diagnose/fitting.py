@@ -72,7 +72,8 @@ def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_
         idx = [i for i, c in enumerate(candidates) if kernel[i] and _group(c.cls) == group]
         if not idx:
             continue
-        size = sum(1 for cls in EFFECTS.values() if _group(cls) == group)
+        size = sum(1 for cls in EFFECTS.values()
+                   if issubclass(cls, AbstractKernelEffect) and _group(cls) == group)
         K = 2 * lay.p_base if group[1] else lay.p_base + 4
         th = [theta0[i] for i in idx]
         it = [ints[i] for i in idx]

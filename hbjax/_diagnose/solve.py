@@ -160,7 +160,10 @@ def sse_terms(cls, lay: Layout, theta, params, consts, v, y, burn: int,
 def evaluate_terms(cls, lay: Layout, theta, params, consts, v, y, criterion="prediction"):
     """``(fitting error, exact prediction error, y_sim, u)`` of a generic effect over the
     whole record, as :func:`evaluate_batch` gives for kernel effects."""
-    effect = cls.from_params(base_model(lay, theta), params)
+    if getattr(cls, "fit_error", None) is not None:  # scales from the context's consts
+        effect = cls.from_params(base_model(lay, theta), params, consts)
+    else:
+        effect = cls.from_params(base_model(lay, theta), params)
     y_sim = effect.simulate_trajectory(v, jnp.zeros_like(v), 0.0)
     u = play_gather(lay, theta, consts, v)
     u = u + effect.input_term(v, u)

@@ -4,30 +4,50 @@
 
 from __future__ import annotations
 
-from ..effect_base import NO_CHANGE as NO_CHANGE, AbstractEffect
-from ..kernel_effect import base_theta as base_theta, layout_of as layout_of
+from ..effect_base import NO_CHANGE as NO_CHANGE
+from ..effect_base import AbstractEffect
+from ..kernel_effect import base_theta as base_theta
+from ..kernel_effect import layout_of as layout_of
 from .disturbances import (
     ColoredNoise as ColoredNoise,
+)
+from .disturbances import (
     OffsetDrift as OffsetDrift,
+)
+from .disturbances import (
     PeriodicDisturbance as PeriodicDisturbance,
 )
 from .dynamics import (
     ExtraDelay as ExtraDelay,
+)
+from .dynamics import (
     ParameterChange as ParameterChange,
+)
+from .dynamics import (
     ParameterMismatch as ParameterMismatch,
+)
+from .dynamics import (
     UnmodeledDynamics as UnmodeledDynamics,
 )
+from .friction import CoulombFrictionInLoop as CoulombFrictionInLoop
+from .harmonic import HarmonicDistortion as HarmonicDistortion
+from .level import LevelDependentDynamics as LevelDependentDynamics
 from .nonlinearity import (
     BranchDegree as BranchDegree,
+)
+from .nonlinearity import (
     CoulombFriction as CoulombFriction,
+)
+from .nonlinearity import (
     OutputNonlinearity as OutputNonlinearity,
 )
-from .saturation import InputSaturation as InputSaturation, OutputSaturation as OutputSaturation
+from .saturation import InputSaturation as InputSaturation
+from .saturation import OutputSaturation as OutputSaturation
 
 _CLASSES = (
     ParameterMismatch, OutputSaturation, InputSaturation, ExtraDelay, UnmodeledDynamics,
     ColoredNoise, OffsetDrift, ParameterChange, PeriodicDisturbance, OutputNonlinearity,
-    CoulombFriction, BranchDegree,
+    CoulombFrictionInLoop, BranchDegree, LevelDependentDynamics, HarmonicDistortion,
 )
 
 #: effect name -> the :class:`hbjax.AbstractEffect` subclass that expresses it (built from
@@ -42,7 +62,7 @@ def resolve(effects) -> list[type]:
     ``parameter_mismatch`` (the reference) is always first."""
     if effects is None:
         return list(EFFECTS.values())
-    if isinstance(effects, str) or isinstance(effects, type):
+    if isinstance(effects, (str, type)):
         effects = [effects]
     if not isinstance(effects, (list, tuple, set, frozenset)):
         raise TypeError(f"`effects` must be a list of names from hbjax.EFFECTS or "

@@ -117,10 +117,21 @@ class PeriodicDisturbance(AbstractKernelEffect):
         f = float(self.frequency)
         amp = math.hypot(float(self.cos_amp), float(self.sin_amp))
         phase = math.atan2(-float(self.sin_amp), float(self.cos_amp))
+        from .harmonic import harmonic_order
+
+        harmonic = harmonic_order(f, np.asarray(info["v"])) if f > 0 else None
+        if harmonic is None:
+            origin = "unrelated to the input: mains hum, a rotating part or vibration."
+        else:  # a line at a harmonic of the input's own line is input-driven
+            origin = (f"at {harmonic[0]} times the input's line at {rounded(harmonic[1])} "
+                      "cycles/sample: driven by the input (harmonic distortion), not a "
+                      "disturbance unrelated to it.")
         return {
             "physics": (f"An additive sinusoid of amplitude {rounded(amp)} at {rounded(f)} "
                         f"cycles/sample (period {rounded(1 / f if f else np.inf)} samples) "
-                        "unrelated to the input: mains hum, a rotating part or vibration."),
+                        + origin),
+            "evidence": {"harmonic_of_input": None if harmonic is None else
+                         {"order": harmonic[0], "input_line": harmonic[1]}},
             "where": {"windows": [[0, len(info["y"])]], "frequency": f,
                       "regime": "whole record, narrow band"},
             "parameters": {"frequency": f, "amplitude": amp, "phase": phase,
