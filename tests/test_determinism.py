@@ -100,6 +100,7 @@ def run_job(devices: int) -> dict:
     flags = env.get("XLA_FLAGS", "")
     env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={devices}".strip()
     env["JAX_PLATFORMS"] = "cpu"
+    env["JAX_ENABLE_X64"] = "1"  # the estimators need float64; hbjax leaves the switch to us
     out = subprocess.run([sys.executable, "-c", JOB], env=env, capture_output=True, text=True,
                          timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]

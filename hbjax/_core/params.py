@@ -5,7 +5,7 @@ from jaxtyping import Array, Float
 
 from .arx import ARX
 from .backlash import Backlash
-from .._misc import as_float_array, check_finite, is_traced
+from .._misc import as_float_array, check_finite, float_dtype, is_traced
 from .model import Hammerstein
 
 
@@ -25,7 +25,8 @@ def unflatten_params(like: Hammerstein, theta) -> Hammerstein:
     """Inverse of :func:`flatten_params`, with the orders of ``like``."""
     _check_model(like, "like")
     na, nb, m = like.arx.na, like.arx.nb, like.backlash.m
-    theta = as_float_array(theta, "theta")
+    # The result has the template's precision (a float64 model stays float64).
+    theta = as_float_array(theta, "theta", dtype=float_dtype(like, theta))
     if theta.shape != (na + nb + 2 * m,):
         raise ValueError(
             f"`theta` must have shape ({na + nb + 2 * m},) for na={na}, nb={nb}, m={m}, "
