@@ -30,13 +30,80 @@ def _read_recording(path, args):
 
 
 def _read_column(path, key, role):
-    """One numeric column of a CSV file; default: the only column, or ``role``'s default."""
+    """One numeric column of a CSV file; default: the only column, or ``role``'s default
+    (``v``/``y`` by name in the layout hbjax writes, else the first/second column)."""
+    from .._io.files import check_readable
     from .._io.recording import read_csv_table
 
-    table = read_csv_table(path)
+    table = read_csv_table(check_readable(path, f"{role} file"))
     if key is None:
-        key = 0 if role == "input" or table.n_columns == 1 else 1
+        v_col, y_col = table.default_columns()
+        key = 0 if table.n_columns == 1 else (v_col if role == "input" else y_col)
     return table.column(table.index(_column_key(key), role))
+
+
+FIGURE_HINT = "(.png, .pdf, .svg, ...)"
+
+
+def _check_outputs(args, outputs, inputs=(), figures=()):
+    """Refuse, before any work, every output that cannot be written: ``outputs`` maps option
+    (``--out``) to path (None: not asked for); ``inputs`` are files the command reads, which
+    no output may replace; ``figures`` the options whose suffix must be a figure format."""
+    import os
+
+    from .._io.files import check_writable
+
+    if not isinstance(inputs, dict):
+        inputs = {f"the input file {str(p)!r}": p for p in inputs}
+    seen = {}
+    for option, path in outputs.items():
+        if path is None:
+            continue
+        real = os.path.realpath(path)
+        for what, inp in inputs.items():
+            if inp is not None and os.path.realpath(inp) == real:
+                raise ValueError(f"{option} {str(path)!r} would replace {what}; choose another "
+                                 "name.")
+        try:
+            check_writable(path, overwrite=args.force, hint="--force")
+        except (OSError, ValueError) as exc:
+            raise type(exc)(f"{option}: {exc}") from None
+        special = os.path.exists(path) and not os.path.isfile(path)
+        if real in seen and not special:
+            raise ValueError(f"{seen[real]} and {option} name the same file {str(path)!r}; "
+                             "choose different names.")
+        seen[real] = option
+        if option in figures:
+            _figure_format(path, option)
+
+
+def _figure_format(path, option) -> str:
+    import os
+
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    fmt = os.path.splitext(str(path))[1].lstrip(".").lower()
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if fmt not in formats:
+        raise ValueError(f"{option} {str(path)!r}: unsupported figure format {fmt or '(none)'!r}; "
+                         f"use one of {', '.join('.' + f for f in sorted(formats))}.")
+    return fmt
+
+
+def _figure_bytes(fig, path) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format=_figure_format(path, "figure"), dpi=120)
+    return buf.getvalue()
+
+
+def _write_all(args, items):
+    """Publish every ``(path, data)`` together (all or nothing) and say so."""
+    from .._io.files import atomic_write_many
+
+    for p in atomic_write_many(items, overwrite=args.force, hint="--force"):
+        print(f"wrote {p}")
 
 
 def _parse_design(text: str):
@@ -91,19 +158,18 @@ def _describe_model(model, indent: str = "  ") -> str:
 
 
 def cmd_signals(args) -> int:
-    from .._io.recording import atomic_write, format_float
+    from .._io.recording import format_float
 
     design = _parse_design(args.design)
+    paths = [f"{args.prefix}{k}.csv" for k in (1, 2, 3)]
+    _check_outputs(args, {f"--prefix ({p})": p for p in paths})
     signals = (
         design.constant_input(args.samples),
         design.binary_input(args.samples),
         design.staircase_input(args.samples),
     )
-    written = []
-    for k, v in enumerate(signals, start=1):
-        text = "v\n" + "".join(format_float(x) + "\n" for x in v)
-        written.append(atomic_write(f"{args.prefix}{k}.csv", text, overwrite=args.force))
-    print("wrote " + ", ".join(str(p) for p in written))
+    texts = ["v\n" + "".join(format_float(x) + "\n" for x in v) for v in signals]
+    _write_all(args, list(zip(paths, texts)))
     return 0
 
 
@@ -115,10 +181,15 @@ def cmd_simulate(args) -> int:
     from .._io.modelfile import load_model
     from .._core.simulate import simulate
 
+    import math
+
+    if not (math.isfinite(args.noise_std) and args.noise_std >= 0):
+        raise ValueError(f"--noise-std must be a finite number >= 0, got {args.noise_std}.")
+    if not math.isfinite(args.u0):
+        raise ValueError(f"--u0 must be a finite number, got {args.u0}.")
+    _check_outputs(args, {"--out": args.out}, inputs=[args.model, args.input])
     model = load_model(args.model)
     v = _read_column(args.input, args.column, "input")
-    if args.noise_std < 0:
-        raise ValueError(f"--noise-std must be >= 0, got {args.noise_std}.")
     noise = None
     if args.noise_std > 0:
         noise = args.noise_std * jax.random.normal(jax.random.PRNGKey(args.seed), v.shape, jnp.float64)
@@ -133,6 +204,7 @@ def cmd_identify_giri(args) -> int:
     from .._io.modelfile import save_model
 
     design = _parse_design(args.design)
+    _check_outputs(args, {"--out": args.out}, inputs=args.records)
     ys = [_read_column(path, args.output, "output") for path in args.records]
     result = identify_giri(design, *ys, transient=args.transient)
     save_model(args.out, result.model, overwrite=args.force)
@@ -165,13 +237,15 @@ def _read_json(path, what):
     import json
     import pathlib
 
-    p = pathlib.Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"{what} {str(p)!r} does not exist.")
+    from .._io.files import check_readable
+    from .._io.recording import read_json_text
+
+    p = check_readable(path, what)
     try:
-        return json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
         raise ValueError(f"{p}: not valid JSON ({exc}).") from None
+    return read_json_text(text, p)
 
 
 def _study_config(path):
@@ -217,6 +291,12 @@ def _study_config(path):
         value = config.get(key, 0)
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"{path}: `{key}` must be an integer, got {value!r}.")
+    if not isinstance(config.get("keep_estimates", False), bool):
+        raise ValueError(f"{path}: `keep_estimates` must be true or false (a JSON boolean), got "
+                         f"{config['keep_estimates']!r}.")
+    noise_std = config["noise_std"]
+    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)):
+        raise ValueError(f"{path}: `noise_std` must be a number, got {noise_std!r}.")
     return model, design, config
 
 
@@ -239,21 +319,16 @@ def _jsonable(value):
 
 def cmd_montecarlo(args) -> int:
     import dataclasses
-    import os
 
     import jax
 
     from .. import __version__
-    from .._io.recording import atomic_write
     from .._io.modelfile import pretty_json
     from .._montecarlo.run import monte_carlo
 
-    for out in (args.out, args.plot):
-        if out is not None and os.path.abspath(out) == os.path.abspath(args.config):
-            raise ValueError(f"the output {out!r} would replace the config file; choose another name.")
-    for out in (args.out, args.plot):  # fail before a long study, not after it
-        if out is not None and os.path.exists(out) and not args.force:
-            raise FileExistsError(f"{out!r} already exists; pass --force to replace it.")
+    # Every output checked before a long study, not after it.
+    _check_outputs(args, {"--out": args.out, "--plot": args.plot},
+                   inputs={"the config file": args.config}, figures={"--plot"})
     model, design, config = _study_config(args.config)
     study = monte_carlo(
         model, design,
@@ -261,7 +336,7 @@ def cmd_montecarlo(args) -> int:
         realisations=config["realisations"], key=jax.random.key(config.get("seed", 0)),
         estimator=config.get("estimator", "giri"), noise=config.get("noise", "equation"),
         chunk_size=config.get("chunk_size"), progress=not args.no_progress,
-        keep_estimates=bool(config.get("keep_estimates", False)) or args.plot is not None,
+        keep_estimates=config.get("keep_estimates", False) or args.plot is not None,
     )
     study.table()
     fields = {f.name: _jsonable(getattr(study, f.name)) for f in dataclasses.fields(study)}
@@ -269,40 +344,25 @@ def cmd_montecarlo(args) -> int:
         fields["estimates"] = None
     doc = {"format": "hbjax-study", "hbjax_version": __version__, "config": config,
            "design": {"n": design.n, "m": design.m, "h_m": design.h_m}, "study": fields}
-    atomic_write(args.out, pretty_json(doc) + "\n", overwrite=args.force)
-    print(f"wrote {args.out}")
+    items = [(args.out, pretty_json(doc) + "\n")]
     if args.plot is not None:
         import matplotlib
 
         matplotlib.use("Agg")
-        _write_figure(args.plot, study.plot(), overwrite=args.force)
+        items.append((args.plot, _figure_bytes(study.plot(), args.plot)))
+    _write_all(args, items)
     return 0
 
 
-def _write_figure(path, fig, *, overwrite):
-    import io
-    import os
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format=os.path.splitext(path)[1].lstrip(".") or "png", dpi=120)
-    from .._io.recording import atomic_write
-
-    atomic_write(path, buf.getvalue(), overwrite=overwrite)
-    print(f"wrote {path}")
-
-
 def cmd_diagnose(args) -> int:
-    import os
-
     from .. import __version__
     from .._diagnose.diagnose import diagnose
-    from .._io.recording import atomic_write
     from .._core.model import Hammerstein
-    from .._io.modelfile import load_model, pretty_json, save_model
+    from .._io.modelfile import load_model, model_to_json, pretty_json
 
-    for out in (args.json, args.plot, args.save_model):  # refuse before the long part
-        if out is not None and os.path.exists(out) and not args.force:
-            raise FileExistsError(f"{out!r} already exists; pass --force to replace it.")
+    _check_outputs(args, {"--json": args.json, "--plot": args.plot,
+                          "--save-model": args.save_model},
+                   inputs=[args.model, args.recording], figures={"--plot"})
     model = load_model(args.model)
     if not isinstance(model, Hammerstein):
         raise ValueError(f"{args.model}: diagnose needs the nominal hbjax.Hammerstein model, "
@@ -315,17 +375,17 @@ def cmd_diagnose(args) -> int:
     report = diagnose(model, rec.v, rec.y, holdout=args.holdout, effects=effects, **options)
     print(f"{rec.source}: {len(rec)} samples, nominal model {args.model}")
     print(report.summary())
+    items = []  # written together at the end: all or nothing
     if args.json is not None:
         doc = {"format": "hbjax-diagnosis", "hbjax_version": __version__,
                "model": args.model, "recording": rec.source, "report": report.to_dict()}
-        atomic_write(args.json, pretty_json(doc) + "\n", overwrite=args.force)
-        print(f"wrote {args.json}")
+        items.append((args.json, pretty_json(doc) + "\n"))
     if args.save_model is not None:
         if report.best is None:
             print(f"no finding: {args.save_model} not written")
         else:
-            save_model(args.save_model, report.best.model, overwrite=args.force)
-            print(f"wrote {args.save_model} ({type(report.best.model).__name__})")
+            items.append((args.save_model, model_to_json(report.best.model)))
+            print(f"model of the best finding: {type(report.best.model).__name__}")
     if args.plot is not None:
         import matplotlib
 
@@ -336,21 +396,19 @@ def cmd_diagnose(args) -> int:
 
         fig, axes = plt.subplots(3, 1, figsize=(9, 9), layout="constrained")
         plot_diagnosis(report, axes=axes)
-        _write_figure(args.plot, fig, overwrite=args.force)
+        items.append((args.plot, _figure_bytes(fig, args.plot)))
+    _write_all(args, items)
     return 0
 
 
 def cmd_identify_fit(args) -> int:
-    import os
-
     import jax
     import numpy as np
 
     from .._identify.fit import fit
     from .._io.modelfile import save_model
 
-    if os.path.exists(args.out) and not args.force:  # refuse before the long part
-        raise FileExistsError(f"{args.out!r} already exists; pass --force to replace it.")
+    _check_outputs(args, {"--out": args.out}, inputs=args.records)  # before the long part
     records = [_read_recording(path, args) for path in args.records]
     options = {} if args.max_steps is None else {"max_steps": args.max_steps}
     result = fit(

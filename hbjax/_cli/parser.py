@@ -1,8 +1,11 @@
 """Command-line interface: ``hbjax <command>`` and ``python -m hbjax <command>``.
 
-Every command has ``--help`` with an example. Errors print one line on stderr and exit with
-status 1 (``--debug`` shows the traceback instead); usage errors exit with status 2. Output
-files are never overwritten unless ``--force`` is given, and are written atomically.
+Every command has ``--help`` with an example. Errors print one line on stderr, prefixed with
+the command as typed and naming options as typed (``hbjax identify fit: error: `--m` must
+...``), and exit with status 1 (``--debug`` shows the traceback instead); usage errors exit
+with status 2; Ctrl-C exits with status 130. Every output path is checked before any work;
+outputs are never overwritten unless ``--force`` is given, and are written atomically and
+together (all or nothing).
 """
 
 import argparse
@@ -217,7 +220,44 @@ def build_parser() -> argparse.ArgumentParser:
     )
     show.add_argument("model", help="model file")
     show.set_defaults(func=commands.cmd_show)
+    # Errors are reported as "hbjax identify fit: error: ...", naming options as typed.
+    for command in [*sub.choices.values(), *methods.choices.values()]:
+        command.set_defaults(
+            _prog=command.prog,
+            _options={a.dest: max(a.option_strings, key=len) for a in command._actions
+                      if a.option_strings and a.dest != "help"},
+        )
     return parser
+
+
+def _as_typed(message: str, options: dict) -> str:
+    """A library message with argument names in backticks (`` `m` ``) as the options the
+    user typed (`` `--m` ``)."""
+    for dest, option in options.items():
+        message = message.replace(f"`{dest}`", f"`{option}`")
+    return message
+
+
+def _exit_interrupted(prog: str) -> None:
+    """Ctrl-C on the command line: say so and leave at once with status 130.
+
+    A normal interpreter exit would tear down the interpreter while XLA's threads are still
+    running the interrupted computation, which can crash (segmentation fault); ``os._exit``
+    after flushing the streams does not wait for them."""
+    import os
+    import signal
+
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C cannot cut this short
+    except ValueError:  # not the main thread
+        pass
+    print(f"{prog}: interrupted", file=sys.stderr)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:
+            pass
+    os._exit(130)
 
 
 def main(argv=None) -> int:
@@ -227,16 +267,20 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     parser = build_parser()
     args = parser.parse_args(argv)
+    prog = getattr(args, "_prog", f"hbjax {args.command}")
     try:
         return args.func(args)
     except KeyboardInterrupt:
-        print(f"hbjax {args.command}: interrupted", file=sys.stderr)
+        if argv is None:  # the program itself (not a call from Python): exit now
+            _exit_interrupted(prog)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # one clear line unless --debug
         if getattr(args, "debug", False):
             raise
         message = " ".join(str(exc).split()) or type(exc).__name__
-        print(f"hbjax {args.command}: error: {message}", file=sys.stderr)
+        message = _as_typed(message, getattr(args, "_options", {}))
+        print(f"{prog}: error: {message}", file=sys.stderr)
         return 1
 
 

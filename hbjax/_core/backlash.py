@@ -10,12 +10,23 @@ from .._misc import as_float_array, is_traced
 from . import display
 
 
+# Most coefficients per branch (degree + 1) a Backlash, and a model file, may have: far
+# beyond any identifiable backlash, and it bounds the compiled programs (and file loads).
+MAX_COEFFICIENTS = 64
+# Up to this many coefficients Horner's rule is unrolled (fastest inside the simulator's
+# scan); beyond, a lax.fori_loop keeps the compiled program small. Same operations, same order.
+_UNROLL = 16
+
+
 def polyval_ascending(c: Float[Array, " m"], v):
     """``c[0] + c[1] v + ... + c[m-1] v^(m-1)`` by Horner's rule (paper eq. (1))."""
+    m = c.shape[0]
     out = jnp.zeros_like(v) + c[-1]
-    for k in range(c.shape[0] - 2, -1, -1):
-        out = out * v + c[k]
-    return out
+    if m <= _UNROLL:
+        for k in range(m - 2, -1, -1):
+            out = out * v + c[k]
+        return out
+    return jax.lax.fori_loop(1, m, lambda i, acc: acc * v + c[m - 1 - i], out)
 
 
 def power_columns(v: Float[Array, " time"], m: int) -> Float[Array, "time m"]:
@@ -50,6 +61,12 @@ class Backlash(eqx.Module):
         c2 = as_float_array(c2, "c2", ndim=1)
         if c1.shape[0] == 0:
             raise ValueError("`c1` must hold at least one coefficient, got shape (0,).")
+        if c1.shape[0] > MAX_COEFFICIENTS:
+            raise ValueError(
+                f"`c1` has {c1.shape[0]} coefficients (degree {c1.shape[0] - 1}); a backlash "
+                f"branch has at most m = {MAX_COEFFICIENTS} coefficients (degree "
+                f"{MAX_COEFFICIENTS - 1})."
+            )
         if c1.shape != c2.shape:
             raise ValueError(
                 "`c1` and `c2` must have the same length m (the paper's common degree "

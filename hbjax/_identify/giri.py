@@ -1,6 +1,8 @@
 """The paper's closed-form identification, sections 4-5: offset (16)-(17), least squares
 (26) for ``A`` and ``B* = mu B``, Vandermonde solves (45)-(46) for ``C1*`` and ``C2*``."""
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -107,8 +109,11 @@ def normalise(model: Hammerstein, h_m) -> Hammerstein:
         raise ValueError(f"`h_m` must be a scalar, got shape {tuple(h_m.shape)}.")
     if is_traced(h_m):
         h_m = eqx.error_if(h_m, ~(h_m > 0), "`h_m` must be > 0.")
+        h_m = eqx.error_if(h_m, ~jnp.isfinite(h_m), "`h_m` must be finite.")
     elif not float(h_m) > 0:
         raise ValueError(f"`h_m` must be > 0, got {float(h_m)}.")
+    elif not math.isfinite(float(h_m)):
+        raise ValueError(f"`h_m` must be finite, got {float(h_m)}.")
     bl = model.backlash
     mu = bl.p2(-h_m) - bl.p1(h_m)
     if is_traced(mu):

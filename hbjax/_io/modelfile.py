@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .files import check_readable
 from .recording import atomic_write
 from .._core.model import AbstractModel
 
@@ -45,7 +46,18 @@ _DTYPES = {"float64", "float32", "int64", "int32", "bool"}
 
 
 class ModelFileError(ValueError):
-    """A model file that is not valid JSON, not an hbjax model file, or inconsistent."""
+    """A model file that is not valid JSON, not an hbjax model file, or inconsistent.
+
+    Raised by :func:`hbjax.load_model` for every problem with the file's content (syntax,
+    foreign or newer format, unknown model types, wrong shapes, integers too large, nesting
+    too deep, a polynomial degree beyond the cap); a ``ValueError``, so ``except ValueError``
+    catches it too.
+    """
+
+
+# Largest model file read (bytes): a model of any sensible order is far smaller, and the JSON
+# parser needs several times the file size in memory.
+MAX_FILE_BYTES = 64 * 2**20
 
 
 def _registered_types() -> dict:
@@ -307,6 +319,7 @@ def _decode_module(obj, extra, where):
             f"`{where}` ({cls.__name__}) does not match the class: missing fields {missing}, "
             f"unknown fields {unknown}."
         )
+    _check_degree(cls, given, where)
     values = {n: _decode(given[n], extra, f"{where}.{n}") for n in expected}
     module = object.__new__(cls)
     for name, value in values.items():
@@ -321,6 +334,24 @@ def _decode_module(obj, extra, where):
                 raise ModelFileError(f"`{where}` ({cls.__name__}) is invalid: {exc}") from None
     _check_arrays(module, cls, where)
     return module
+
+
+def _check_degree(cls, given, where):
+    """Refuse a backlash polynomial beyond the degree cap before building any array."""
+    from .._core.backlash import MAX_COEFFICIENTS, Backlash
+
+    if not issubclass(cls, Backlash):
+        return
+    for name in ("c1", "c2"):
+        entry = given.get(name)
+        shape = entry.get("shape") if isinstance(entry, dict) else None
+        if (isinstance(shape, list) and len(shape) == 1 and isinstance(shape[0], int)
+                and shape[0] > MAX_COEFFICIENTS):
+            raise ModelFileError(
+                f"`{where}.{name}` has {shape[0]} coefficients (polynomial degree "
+                f"{shape[0] - 1}); hbjax handles at most m = {MAX_COEFFICIENTS} coefficients "
+                f"per branch (degree {MAX_COEFFICIENTS - 1})."
+            )
 
 
 def _check_arrays(module, cls, where):
@@ -349,8 +380,20 @@ def _check_arrays(module, cls, where):
 def model_from_json(text: str, *, classes=(), source: str = "<string>") -> AbstractModel:
     """Rebuild a model from model-file text; raises :class:`ModelFileError` on any problem."""
     try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
+        return _model_from_json(text, classes, source)
+    except RecursionError:
+        raise ModelFileError(f"{source}: not a valid JSON model file (nested too deeply).") from None
+    except OverflowError as exc:
+        raise ModelFileError(f"{source}: a number is too large for its type ({exc}).") from None
+
+
+def _model_from_json(text, classes, source):
+    def constant(name):
+        raise ValueError(f"{name} is not a JSON number")
+
+    try:
+        doc = json.loads(text, parse_constant=constant)
+    except ValueError as exc:  # JSONDecodeError, the digit limit of int(), NaN constants
         raise ModelFileError(f"{source}: not a valid JSON model file ({exc}).") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ModelFileError(f"{source}: not an hbjax model file (no \"format\": \"{FORMAT}\").")
@@ -392,11 +435,16 @@ def load_model(path, *, classes=()) -> AbstractModel:
     file and the offending entry if the file is corrupted, foreign, from a newer format, or
     names an unknown class. Nothing is returned unless the whole model was rebuilt and checked.
     """
-    p = pathlib.Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"model file {str(p)!r} does not exist.")
+    p = check_readable(path, "model file")
     try:
-        text = p.read_text(encoding="utf-8")
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_FILE_BYTES + 1)
+        if len(raw) > MAX_FILE_BYTES:
+            raise ModelFileError(
+                f"{p}: larger than {MAX_FILE_BYTES // 2**20} MiB; not an hbjax model file "
+                "(models of any sensible order are far smaller)."
+            )
+        text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise ModelFileError(f"{p}: not a text file; expected an hbjax JSON model file.") from None
     return model_from_json(text, classes=classes, source=str(p))

@@ -12,11 +12,13 @@ import csv
 import dataclasses
 import io
 import json
-import os
+import math
 import pathlib
-import tempfile
+import re
 
 import numpy as np
+
+from .files import atomic_write as atomic_write, check_readable
 
 from . import frames as _frames
 
@@ -179,53 +181,87 @@ def load_recording(
 
     - `path`: the file. The format follows the suffix: ``.npz``, ``.json``, anything else CSV.
     - `input`, `output`: the columns holding ``v`` and ``y``, by header name or 0-based index.
-      Defaults: CSV columns 0 and 1; NPZ arrays ``v`` and ``y`` if present, else the first two
-      arrays; BRFD JSON columns ``displacement`` (1) and ``friction force`` (2).
-    - `time`: optional column of sample times; ``dt`` is their (uniform) spacing.
+      Defaults: CSV columns ``v`` and ``y`` when the header names both (the layout
+      :func:`save_recording` writes), else columns 0 and 1; NPZ arrays ``v`` and ``y`` if
+      present, else the first two arrays; BRFD JSON columns ``displacement`` (1) and
+      ``friction force`` (2).
+    - `time`: optional column of sample times; ``dt`` is their (uniform) spacing. Times
+      written as ``k * dt`` give back ``dt`` exactly.
     - `dt`: the sampling period, when the file does not give it.
+
+    The file's own sampling period is used when no `time` or `dt` is given: the
+    ``# hbjax recording; dt = ...`` comment line of a CSV file written by
+    :func:`save_recording`, the ``dt`` entry of an NPZ archive or a BRFD JSON file.
 
     CSV files may have a header row (detected: a first row with a non-numeric cell) and
     blank or ``#`` comment lines; the delimiter is a comma, semicolon, tab or whitespace.
+    Cells are plain decimal numbers (``1.5``, ``-2e-3``); ``1_000`` or non-ASCII digits are
+    refused as non-numeric.
     Unused columns may hold anything (e.g. blank cells). Errors (``ValueError``) name the
     file, row and column of a missing column, a non-numeric or empty cell, a ragged row, a
     NaN or an empty file.
 
     **Returns:** a :class:`hbjax.Recording` with ``source`` the path and ``name`` its stem.
     """
-    p = pathlib.Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"recording file {str(p)!r} does not exist.")
+    p = check_readable(path, "recording file")
     suffix = p.suffix.lower()
+    t0, channels = 0.0, {}
     if suffix == ".npz":
-        columns, file_dt = _read_npz(p, input, output, time)
+        columns, file_dt, t0, channels = _read_npz(p, input, output, time)
     elif suffix == ".json":
         columns, file_dt = _read_brfd_json(p, input, output, time)
     else:
         table = read_csv_table(p)
-        columns = table.columns([input if input is not None else 0,
-                                 output if output is not None else 1,
-                                 time], ("input", "output", "time"))
-        file_dt = None
+        v_col, y_col = table.default_columns()
+        keys = [input if input is not None else v_col, output if output is not None else y_col,
+                time]
+        columns = table.columns(keys, ("input", "output", "time"))
+        file_dt = table.dt
+        if table.meta is not None:  # written by save_recording: its t0 and channels too
+            t0 = table.meta.get("t0", 0.0)
+            used = {table.index(k, "column") for k in keys if k is not None}
+            used |= {j for j in [table.named("t")] if j is not None}
+            channels = {table.header[j].strip(): table.column(j)
+                        for j in range(table.n_columns) if j not in used}
     v, y, t = columns
     rec_dt = _resolve_dt(p, t, file_dt, dt)
-    return Recording(v=v, y=y, dt=rec_dt, source=str(p), name=p.stem)
+    if t is not None:
+        t0 = float(t[0])
+    try:
+        return Recording(v=v, y=y, dt=rec_dt, source=str(p), name=p.stem, channels=channels,
+                         t0=t0)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{p}: {exc}") from None
 
 
 def _resolve_dt(p, t, file_dt, dt):
     if dt is not None:
         return dt
     if t is not None:
+        # The file's own dt when its times are exactly t0 + k * dt (save_recording's layout).
+        if file_dt is not None and np.array_equal(t[0] + np.arange(t.shape[0]) * file_dt, t):
+            return file_dt
         return _uniform_step(t, p)
     return file_dt
 
 
 def _uniform_step(t: np.ndarray, p) -> float:
-    if t.shape[0] < 2:
-        raise ValueError(f"{p}: the time column needs at least 2 samples to give `dt`.")
+    n = t.shape[0]
+    if n < 2:
+        raise ValueError(
+            f"{p}: the time column needs at least 2 samples to give `dt` (pass dt=...)."
+        )
+    # Times written as t0 + k * dt (as save_recording writes them) give dt exactly.
+    step = float(t[1] - t[0])
+    if step > 0 and np.array_equal(t[0] + np.arange(n) * step, t):
+        return step
     steps = np.diff(t)
-    step = float(np.median(steps))
-    if not step > 0:
-        raise ValueError(f"{p}: the time column must increase, got median step {step!r}.")
+    # Otherwise the mean step, to 12 significant digits (decimal times such as 0.1, 0.2, 0.3
+    # then give dt = 0.1, not 0.09999999999999998).
+    span = (float(t[-1]) - float(t[0])) / (n - 1)
+    step = float(f"{span:.12g}") if math.isfinite(span) else span
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f"{p}: the time column must increase, got mean step {step!r}.")
     # Times written with few digits jitter; a 0.1 % tolerance accepts that but not gaps.
     bad = np.flatnonzero(np.abs(steps - step) > 1e-3 * step)
     if bad.size:
@@ -239,8 +275,31 @@ def _uniform_step(t: np.ndarray, p) -> float:
 class CsvTable:
     """Cells of a CSV file as strings, with their 1-based line numbers (for error messages)."""
 
-    def __init__(self, path, header, rows, lines):
+    def __init__(self, path, header, rows, lines, meta=None):
         self.path, self.header, self.rows, self.lines = path, header, rows, lines
+        # From a "# hbjax recording; dt = ...; t0 = ..." comment line (save_recording's
+        # layout), else None.
+        self.meta = meta
+
+    @property
+    def dt(self) -> float | None:
+        return None if self.meta is None else self.meta.get("dt")
+
+    def named(self, name: str) -> int | None:
+        """Index of the header column called exactly ``name`` (stripped), else None."""
+        if self.header is None:
+            return None
+        names = [h.strip() for h in self.header]
+        return names.index(name) if name in names else None
+
+    def default_columns(self) -> tuple[int, int]:
+        """Input and output columns when none are asked for: ``v`` and ``y`` by name when
+        the header has both (the layout :func:`save_recording` writes, ``t,v,y``), else the
+        first two columns."""
+        v, y = self.named("v"), self.named("y")
+        if v is not None and y is not None:
+            return v, y
+        return 0, 1
 
     @property
     def n_columns(self) -> int:
@@ -288,7 +347,7 @@ class CsvTable:
         for r, (row, line) in enumerate(zip(self.rows, self.lines)):
             cell = row[j].strip()
             try:
-                out[r] = float(cell)
+                out[r] = parse_number(cell)
             except ValueError:
                 what = "empty cell" if not cell else f"non-numeric cell {cell!r}"
                 raise ValueError(
@@ -304,6 +363,28 @@ class CsvTable:
         """The float columns ``keys`` (``None`` entries give ``None``), all checked."""
         idx = [None if k is None else self.index(k, role) for k, role in zip(keys, roles)]
         return [None if j is None else self.column(j) for j in idx]
+
+
+# A decimal number as written by people and programs: ASCII digits, optional sign, point and
+# exponent, or inf/nan. Python's float() also takes "1_000" and non-ASCII digits ("１２");
+# those are refused as non-numeric so that a cell is never read as a number it does not show.
+_NUMBER = re.compile(
+    r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf|infinity|nan)", re.ASCII | re.IGNORECASE
+)
+
+
+def parse_number(cell: str) -> float:
+    """``float(cell)`` for a plain decimal number only; ``ValueError`` otherwise."""
+    text = cell.strip()
+    if not _NUMBER.fullmatch(text):
+        raise ValueError(f"not a number: {cell!r}")
+    return float(text)
+
+
+# The comment line save_recording writes above the header, with the exact sampling period
+# and time origin when they are known: "# hbjax recording; dt = 0.1; t0 = 0.0".
+_META_COMMENT = re.compile(r"#\s*hbjax recording\s*((?:;\s*\w+\s*=\s*\S+\s*)*)$")
+_META_KEYS = ("dt", "t0")
 
 
 def _split_row(line: str, delimiter: str | None) -> list[str]:
@@ -327,11 +408,20 @@ def read_csv_table(path) -> CsvTable:
         text = p.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise ValueError(f"{p}: not a text (UTF-8) file; expected CSV.") from None
+    lines = text.splitlines()
     numbered = [
         (i + 1, line)
-        for i, line in enumerate(text.splitlines())
+        for i, line in enumerate(lines)
         if line.strip() and not line.lstrip().startswith("#")
     ]
+    meta = None
+    for i, line in enumerate(lines):
+        match = _META_COMMENT.match(line.strip())
+        if match:
+            meta = _parse_meta(match.group(1), f"{p}: row {i + 1}")
+            break
+        if line.strip() and not line.lstrip().startswith("#"):
+            break  # the comment sits above the header
     if not numbered:
         raise ValueError(f"{p}: the file is empty (no header and no data rows).")
     first = numbered[0][1]
@@ -352,7 +442,21 @@ def read_csv_table(path) -> CsvTable:
                 f"{p}: ragged row {n}: {len(cells)} cells, but the "
                 f"{'header' if header is not None else 'first row'} has {width}."
             )
-    return CsvTable(p, header, [c for _, c in rows], [n for n, _ in rows])
+    return CsvTable(p, header, [c for _, c in rows], [n for n, _ in rows], meta)
+
+
+def _parse_meta(text: str, where: str) -> dict:
+    meta = {}
+    for item in text.split(";")[1:]:
+        key, _, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if key not in _META_KEYS:
+            continue  # written by a newer hbjax: ignored
+        try:
+            meta[key] = parse_number(value)
+        except ValueError:
+            raise ValueError(f"{where}: `{key}` = {value!r} is not a number.") from None
+    return meta
 
 
 def _read_npz(p, input, output, time):
@@ -382,12 +486,14 @@ def _read_npz(p, input, output, time):
                 key = names[key]
             if key not in names:
                 raise ValueError(f"{p}: no {role} array named {key!r}; arrays: {names}.")
-            arr = archive[key]
+            arr = _npz_array(archive, key, p)
             if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.number):
                 raise ValueError(
                     f"{p}: array {key!r} must be a 1-D numeric array, got shape {arr.shape} "
                     f"dtype {arr.dtype}."
                 )
+            if np.iscomplexobj(arr):
+                raise ValueError(f"{p}: array {key!r} must be real, got dtype {arr.dtype}.")
             arr = arr.astype(np.float64)
             bad = np.flatnonzero(~np.isfinite(arr))
             if bad.size:
@@ -397,20 +503,78 @@ def _read_npz(p, input, output, time):
         cols = [get(input, "input"), get(output, "output"), get(time, "time")]
         file_dt = None
         if "dt" in names:
-            file_dt = float(np.asarray(archive["dt"]).reshape(()))
+            raw = _npz_array(archive, "dt", p)
+            if (raw.size != 1 or raw.dtype == bool or not np.issubdtype(raw.dtype, np.number)
+                    or np.iscomplexobj(raw)):
+                raise ValueError(
+                    f"{p}: array 'dt' must hold one real number (the sampling period), got "
+                    f"shape {raw.shape} dtype {raw.dtype}."
+                )
+            file_dt = float(raw.reshape(()))
+        t0 = 0.0
+        if "t0" in names:
+            raw = _npz_array(archive, "t0", p)
+            if raw.shape != () or raw.dtype != np.float64:
+                raise ValueError(f"{p}: array 't0' must be a float64 scalar, got shape "
+                                 f"{raw.shape} dtype {raw.dtype}.")
+            t0 = float(raw)
+        channels = {}
+        if "channel_names" in names or "channels" in names:
+            channels = _npz_channels(archive, p, cols[0].shape[0])
     if cols[0].shape != cols[1].shape:
         raise ValueError(
             f"{p}: input and output arrays differ in length ({cols[0].shape[0]} and "
             f"{cols[1].shape[0]})."
         )
-    return cols, file_dt
+    return cols, file_dt, t0, channels
+
+
+def _npz_channels(archive, p, n: int) -> dict:
+    """The channels save_recording stores: ``channel_names`` (1-D text) and ``channels``
+    (2-D float64, one row per name)."""
+    if not {"channel_names", "channels"} <= set(archive.files):
+        raise ValueError(f"{p}: arrays 'channel_names' and 'channels' come together.")
+    names = _npz_array(archive, "channel_names", p)
+    data = _npz_array(archive, "channels", p)
+    if names.ndim != 1 or names.dtype.kind != "U":
+        raise ValueError(f"{p}: array 'channel_names' must be 1-D text, got shape {names.shape} "
+                         f"dtype {names.dtype}.")
+    if data.dtype != np.float64 or data.shape != (names.shape[0], n):
+        raise ValueError(f"{p}: array 'channels' must be float64 of shape "
+                         f"({names.shape[0]}, {n}), got shape {data.shape} dtype {data.dtype}.")
+    if len(set(names.tolist())) != names.shape[0]:
+        raise ValueError(f"{p}: array 'channel_names' repeats a name.")
+    return {str(name): data[k] for k, name in enumerate(names.tolist())}
+
+
+def _npz_array(archive, key, p) -> np.ndarray:
+    try:
+        return archive[key]
+    except Exception as exc:  # a damaged member: zlib/zip/format errors
+        raise ValueError(f"{p}: array {key!r} cannot be read ({exc}).") from None
+
+
+def read_json_text(text: str, source) -> object:
+    """``json.loads`` with every failure a ``ValueError`` naming ``source``: syntax, the
+    NaN/Infinity extensions (not JSON), integers too long to read, nesting too deep."""
+
+    def constant(name):
+        raise ValueError(f"{name} is not a JSON number")
+
+    try:
+        return json.loads(text, parse_constant=constant)
+    except RecursionError:
+        raise ValueError(f"{source}: not valid JSON (nested too deeply).") from None
+    except ValueError as exc:  # JSONDecodeError, digit limit of int(), NaN constants
+        raise ValueError(f"{source}: not valid JSON ({exc}).") from None
 
 
 def _read_brfd_json(p, input, output, time):
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
         raise ValueError(f"{p}: not valid JSON ({exc}).") from None
+    doc = read_json_text(text, p)
     if not isinstance(doc, dict) or not isinstance(doc.get("data"), list):
         raise ValueError(
             f"{p}: expected the BRFD JSON layout, an object with a `data` list of rows."
@@ -453,69 +617,35 @@ def _read_brfd_json(p, input, output, time):
         for r, row in enumerate(rows):
             cell = row[j]
             if isinstance(cell, bool) or not isinstance(cell, (int, float)):
-                raise ValueError(f"{p}: non-numeric value {cell!r} at data row {r}, column {j}.")
-            col[r] = cell
+                raise ValueError(
+                    f"{p}: non-numeric value {_short(cell)} at data row {r}, column {j}."
+                )
+            try:
+                col[r] = cell
+            except OverflowError:
+                raise ValueError(
+                    f"{p}: number too large for a float64 at data row {r}, column {j}."
+                ) from None
             if not np.isfinite(col[r]):
                 raise ValueError(f"{p}: NaN or inf at data row {r}, column {j}.")
         cols.append(col)
     file_dt = doc.get("dt")
     if file_dt is not None and (isinstance(file_dt, bool) or not isinstance(file_dt, (int, float))):
-        raise ValueError(f"{p}: `dt` must be a number, got {file_dt!r}.")
+        raise ValueError(f"{p}: `dt` must be a number, got {_short(file_dt)}.")
+    if file_dt is not None:
+        try:
+            file_dt = float(file_dt)
+        except OverflowError:
+            raise ValueError(f"{p}: `dt` is too large for a float64.") from None
     return cols, file_dt
 
 
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 # ----------------------------------------------------------------------------- writing
-
-
-def atomic_write(path, data: str | bytes, *, overwrite: bool = False) -> pathlib.Path:
-    """Write ``data`` to ``path`` all at once: a temporary file in the same directory is
-    filled, flushed to disk and renamed over ``path``, so an interrupted run never leaves a
-    truncated file. An existing ``path`` is kept unless ``overwrite`` is true."""
-    p = pathlib.Path(path)
-    if p.exists() and not overwrite:
-        raise FileExistsError(
-            f"{str(p)!r} already exists; pass overwrite=True (--force on the command line) "
-            "to replace it."
-        )
-    if p.is_dir():
-        raise IsADirectoryError(f"{str(p)!r} is a directory, not a file.")
-    parent = p.parent if str(p.parent) else pathlib.Path(".")
-    if not parent.is_dir():
-        raise FileNotFoundError(f"folder {str(parent)!r} of {str(p)!r} does not exist.")
-    payload = data.encode("utf-8") if isinstance(data, str) else data
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent)
-    try:
-        # mkstemp makes the file private (0600); give it the mode an ordinary open() would.
-        os.chmod(tmp, _default_mode())
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(payload)
-            fh.flush()
-            os.fsync(fh.fileno())
-        if overwrite:
-            os.replace(tmp, p)
-        else:
-            # link() fails if the target appeared meanwhile: no clobbering even in a race.
-            try:
-                os.link(tmp, p)
-            except FileExistsError:
-                raise FileExistsError(
-                    f"{str(p)!r} already exists; pass overwrite=True (--force) to replace it."
-                ) from None
-            except OSError:  # file systems without hard links
-                os.replace(tmp, p)
-            else:
-                os.unlink(tmp)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return p
-
-
-def _default_mode() -> int:
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
 
 
 def format_float(x: float) -> str:
@@ -524,21 +654,66 @@ def format_float(x: float) -> str:
 
 
 def save_recording(path, recording: Recording, *, overwrite: bool = False) -> pathlib.Path:
-    """Write ``recording`` as CSV with header ``v,y`` (``t,v,y`` when ``dt`` is known).
+    """Write ``recording`` to a file that :func:`load_recording` reads back bit for bit:
+    ``v``, ``y``, ``dt``, ``t0`` and the channels (not ``trend``).
 
-    Values are written with the shortest exact decimal, so :func:`load_recording` reads back
-    the same float64 numbers (and the same ``dt`` through ``time="t"``). Atomic, and an
-    existing file is kept unless ``overwrite``.
+    - ``*.npz``: arrays ``v``, ``y``, ``t0`` (0-d), ``dt`` (0-d, when known) and, with
+      channels, ``channel_names`` and ``channels`` (one row each).
+    - anything else but ``*.json``: CSV. A comment line ``# hbjax recording; dt = <dt>;
+      t0 = <t0>`` (entries when known), then header ``v,y`` or, when ``dt`` is known,
+      ``t,v,y`` with times ``t0 + k * dt``, then one column per channel. Values are written
+      with the shortest exact decimal, so the same float64 numbers are read back, by default
+      or through ``time="t"``. Channel names must be non-empty, free of line breaks and of
+      surrounding blanks, and not ``t``, ``v`` or ``y``.
+    - ``*.json`` is refused: that suffix is read as the BRFD layout.
+
+    Times that overflow float64 (``dt`` near 1e308) are refused rather than written as
+    ``inf``. Atomic, and an existing file is kept unless ``overwrite``.
     """
     if not isinstance(recording, Recording):
         raise TypeError(f"`recording` must be an hbjax.Recording, got {type(recording).__name__}.")
+    suffix = pathlib.Path(path).suffix.lower()
+    if suffix == ".json":
+        raise ValueError(
+            f"{str(path)!r}: save_recording writes CSV or .npz; a .json file would be read back "
+            "as the BRFD layout. Choose a .csv or .npz name."
+        )
+    t = recording.t
+    if not np.all(np.isfinite(t)):
+        k = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ValueError(
+            f"the time of sample {k}, t0 + {k} * dt, exceeds the largest float64 "
+            f"(`dt` = {recording.dt!r}, `t0` = {recording.t0!r}); rescale the time unit."
+        )
+    names = list(recording.channels)
+    if suffix == ".npz":
+        arrays = {"v": recording.v, "y": recording.y,
+                  "t0": np.asarray(recording.t0, dtype=np.float64)}
+        if recording.dt is not None:
+            arrays["dt"] = np.asarray(recording.dt, dtype=np.float64)
+        if names:
+            arrays["channel_names"] = np.array(names, dtype=str)
+            arrays["channels"] = np.stack([recording.channels[n] for n in names])
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        return atomic_write(path, buf.getvalue(), overwrite=overwrite)
+    for name in names:
+        if (not name or name != name.strip() or name in ("t", "v", "y")
+                or any(c in name for c in "\r\n\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029")):
+            raise ValueError(
+                f"channel name {name!r} cannot be a CSV column name (empty, blanks around it, "
+                "a line break, or t/v/y); save to a .npz file instead."
+            )
+    meta = "# hbjax recording"
+    if recording.dt is not None:
+        meta += f"; dt = {format_float(recording.dt)}"
+    meta += f"; t0 = {format_float(recording.t0)}"
+    columns = ([t] if recording.dt is not None else []) + [recording.v, recording.y]
+    columns += [recording.channels[n] for n in names]
+    header = (["t"] if recording.dt is not None else []) + ["v", "y"] + names
     buf = io.StringIO()
-    if recording.dt is None:
-        buf.write("v,y\n")
-        for v, y in zip(recording.v, recording.y):
-            buf.write(f"{format_float(v)},{format_float(y)}\n")
-    else:
-        buf.write("t,v,y\n")
-        for t, v, y in zip(recording.t, recording.v, recording.y):
-            buf.write(f"{format_float(t)},{format_float(v)},{format_float(y)}\n")
+    buf.write(meta + "\n")
+    csv.writer(buf, lineterminator="\n").writerow(header)
+    for row in zip(*(c.tolist() for c in columns)):
+        buf.write(",".join(map(repr, row)) + "\n")
     return atomic_write(path, buf.getvalue(), overwrite=overwrite)

@@ -1,0 +1,347 @@
+"""Files and the command line under adversarial use: round trips of what hbjax writes,
+special files, races, long names, hostile model files, output checks before any work,
+Ctrl-C, and property tests of the readers and writers."""
+
+import contextlib
+import errno
+import io
+import json
+import os
+import pathlib
+import runpy
+import signal
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import hbjax
+
+
+M = hbjax.default_system()
+FS = settings(max_examples=50, deadline=None,
+              suppress_health_check=[HealthCheck.function_scoped_fixture])
+DOCUMENTED = (hbjax.ModelFileError, ValueError, FileNotFoundError, IsADirectoryError)
+
+
+def cli(*argv, monkeypatch=None):
+    """(status, stdout, stderr) of ``python -m hbjax ARGV`` run in this process."""
+    out, err = io.StringIO(), io.StringIO()
+    saved = sys.argv
+    sys.argv = ["hbjax", *map(str, argv)]
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                runpy.run_module("hbjax", run_name="__main__", alter_sys=False)
+                status = 0
+            except SystemExit as exc:
+                status = exc.code
+    finally:
+        sys.argv = saved
+    return status, out.getvalue(), err.getvalue()
+
+
+def same_recording(a, b):
+    assert a.v.tobytes() == b.v.tobytes() and a.y.tobytes() == b.y.tobytes()
+    assert a.dt == b.dt and a.t0 == b.t0
+    assert list(a.channels) == list(b.channels)
+    assert all(a.channels[k].tobytes() == b.channels[k].tobytes() for k in a.channels)
+
+
+# ----------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("suffix", ["csv", "npz"])
+def test_saved_recording_reads_back_unshifted(tmp_path, suffix):
+    rec = hbjax.Recording([1.0, 2, 3], [10.0, 20, 30], dt=0.5)
+    back = hbjax.load_recording(hbjax.save_recording(tmp_path / f"r.{suffix}", rec))
+    same_recording(rec, back)
+    np.testing.assert_array_equal(back.v, [1.0, 2, 3])
+
+
+def test_bundled_record_saved_and_read_by_the_cli(tmp_path):
+    est, _ = hbjax.datasets.cascaded_tanks()
+    p = hbjax.save_recording(tmp_path / "tanks.csv", est)
+    same_recording(est, hbjax.load_recording(p))
+    # The command line picks the columns v and y of the layout hbjax writes (not t, v).
+    status, _, err = cli("simulate", "--model", hbjax.save_model(tmp_path / "m.json", M),
+                         "--input", p, "--out", tmp_path / "y.csv")
+    assert status == 0, err
+    assert hbjax.load_recording(tmp_path / "y.csv").v.tobytes() == est.v.tobytes()
+
+
+def test_sampling_period_and_length_one_round_trip(tmp_path):
+    rec = hbjax.Recording(np.zeros(100_000), np.ones(100_000), dt=0.1)
+    p = hbjax.save_recording(tmp_path / "long.csv", rec)
+    assert hbjax.load_recording(p).dt == 0.1
+    assert hbjax.load_recording(p, time="t").dt == 0.1
+    one = hbjax.Recording([1.0], [2.0], dt=0.1, t0=3.3)
+    p = hbjax.save_recording(tmp_path / "one.csv", one)
+    same_recording(one, hbjax.load_recording(p, time="t"))
+    # Times 0.1, 0.2, 0.3 written by hand give dt = 0.1, not 0.09999999999999998.
+    hand = tmp_path / "hand.csv"
+    hand.write_text("time,v,y\n" + "".join(f"{k / 10},{k},{k}\n" for k in range(1, 40)))
+    assert hbjax.load_recording(hand, time="time").dt == 0.1
+
+
+def test_huge_dt_is_refused_not_written_as_inf(tmp_path):
+    with pytest.raises(ValueError, match="exceeds the largest float64"):
+        hbjax.save_recording(tmp_path / "r.csv", hbjax.Recording([1.0, 2, 3], [1.0, 2, 3], dt=1e308))
+    assert not (tmp_path / "r.csv").exists()
+    with pytest.raises(ValueError, match="BRFD layout"):
+        hbjax.save_recording(tmp_path / "r.json", hbjax.Recording([1.0], [1.0]))
+
+
+@pytest.mark.parametrize("cell", ["1_000", "\uff11\uff12", "0x10", "1e", "--1"])
+def test_loose_numbers_are_refused(tmp_path, cell):
+    p = tmp_path / "r.csv"
+    p.write_text(f"v,y\n1,2\n{cell},3\n")
+    with pytest.raises(ValueError, match=r"non-numeric cell .* at row 3, column 0"):
+        hbjax.load_recording(p)
+
+
+# ----------------------------------------------------------------------------- special files
+
+
+def test_special_files_are_written_into_never_replaced(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    reader = subprocess.Popen([sys.executable, "-c", f"print(len(open({str(fifo)!r}).read()))"],
+                              stdout=subprocess.PIPE, text=True)
+    hbjax.save_recording(fifo, hbjax.Recording([1.0, 2.0], [3.0, 4.0]))
+    assert int(reader.communicate(timeout=60)[0]) > 0
+    assert pathlib.Path(fifo).is_fifo()
+    for target in ("/dev/null", fifo):
+        link = tmp_path / f"link{len(str(target))}"
+        link.symlink_to(target)
+        if target == "/dev/null":
+            hbjax.save_model(link, M, overwrite=True)
+            hbjax.save_model("/dev/null", M)  # a device is written into: no overwrite needed
+            assert os.path.islink(link) and pathlib.Path("/dev/null").is_char_device()
+    with pytest.raises(ValueError, match="standard output"):
+        hbjax.save_model("-", M)
+    # A symbolic link to a regular file stays a link; the file behind it is replaced.
+    real = tmp_path / "real.json"
+    real.write_text("old")
+    (tmp_path / "alias.json").symlink_to(real)
+    hbjax.save_model(tmp_path / "alias.json", M, overwrite=True)
+    assert os.path.islink(tmp_path / "alias.json") and hbjax.load_model(real) is not None
+
+
+def test_no_hard_links_falls_back_without_clobbering(tmp_path, monkeypatch):
+    target = tmp_path / "r.csv"
+
+    def link_fails_and_file_appears(src, dst):
+        pathlib.Path(dst).write_text("someone else's data")  # appears during the write
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", link_fails_and_file_appears)
+    with pytest.raises(FileExistsError, match="already exists"):
+        hbjax.save_recording(target, hbjax.Recording([1.0], [2.0]))
+    assert target.read_text() == "someone else's data"
+    monkeypatch.setattr(os, "link", lambda src, dst: (_ for _ in ()).throw(
+        OSError(errno.EOPNOTSUPP, "not supported")))
+    new = hbjax.save_recording(tmp_path / "new.csv", hbjax.Recording([1.0], [2.0]))
+    assert hbjax.load_recording(new).y.tolist() == [2.0]
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
+
+
+@pytest.mark.parametrize("length", [245, 250, 255])
+def test_long_file_names(tmp_path, length):
+    p = tmp_path / ("m" * (length - 5) + ".json")
+    hbjax.save_model(p, M)
+    assert type(hbjax.load_model(p)) is hbjax.Hammerstein
+
+
+# ----------------------------------------------------------------------------- model files
+
+
+def test_model_file_cannot_name_hbjax_main_or_any_module(tmp_path):
+    text = hbjax.save_model(tmp_path / "m.json", M).read_text()
+    before = set(sys.modules)
+    for name in ("hbjax.__main__.X", "hbjax._cli.parser.main", "os.system", "hbjax.Hammerstein"):
+        p = tmp_path / "evil.json"
+        p.write_text(text.replace('"class": "Hammerstein"', f'"class": "{name}"', 1))
+        with pytest.raises(hbjax.ModelFileError, match="unknown model class"):
+            hbjax.load_model(p)
+    assert set(sys.modules) - before == set()
+
+
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (lambda t: t.replace('"format_version": 1', '"format_version": 1' + "0" * 5000), "not a valid JSON"),
+        (lambda t: t.replace('"format_version": 1', '"format_version": ' + "[" * 50000 + "]" * 50000), "nested too deeply|not a valid JSON"),
+        (lambda t: t.replace('"dtype": "float64"', '"dtype": "int64"', 1).replace("[-1.2", "[" + "9" * 400, 1), "too large|must hold|integers"),
+        (lambda t: json.dumps({"format": "hbjax-model", "format_version": 1, "kind": "Backlash", "model": {"class": "Backlash", "fields": {"c1": {"array": [], "dtype": "float64", "shape": [9_000_000]}, "c2": {"array": [], "dtype": "float64", "shape": [9_000_000]}}}}), "at most m = 64"),
+        (lambda t: t.replace('"format_version": 1', '"format_version": NaN'), "not a valid JSON"),
+    ],
+)
+def test_hostile_model_files_give_model_file_errors(tmp_path, edit, match):
+    text = hbjax.save_model(tmp_path / "m.json", M).read_text()
+    p = tmp_path / "bad.json"
+    p.write_text(edit(text))
+    with pytest.raises(hbjax.ModelFileError, match=match):
+        hbjax.load_model(p)
+
+
+def test_polynomial_degree_is_capped_and_evaluated_exactly():
+    with pytest.raises(ValueError, match="at most m = 64"):
+        hbjax.Backlash(np.ones(65), np.ones(65))
+    rng = np.random.default_rng(0)
+    c = rng.normal(size=64) / np.arange(1, 65) ** 2
+    bl = hbjax.Backlash(c, c + 1.0)
+    v = np.linspace(-1.1, 1.1, 301)
+    ref = np.full_like(v, c[-1])
+    for k in range(62, -1, -1):
+        ref = ref * v + c[k]
+    np.testing.assert_allclose(np.asarray(bl.p1(v)), ref, rtol=0, atol=1e-13)
+
+
+def test_clear_errors_for_directories_npz_and_brfd_json(tmp_path):
+    with pytest.raises(IsADirectoryError, match="is a directory"):
+        hbjax.load_recording(tmp_path)
+    with pytest.raises(IsADirectoryError, match="is a directory"):
+        hbjax.load_model(tmp_path)
+    np.savez(tmp_path / "r.npz", v=np.ones(3), y=np.ones(3), dt=np.ones(2))
+    with pytest.raises(ValueError, match="'dt' must hold one real number"):
+        hbjax.load_recording(tmp_path / "r.npz")
+    np.savez(tmp_path / "c.npz", v=np.ones(3) + 1j, y=np.ones(3))
+    with pytest.raises(ValueError, match="must be real"):
+        hbjax.load_recording(tmp_path / "c.npz")
+    for body, match in [('{"data": [[0, 1, 1%s]]}' % ("0" * 400), "too large for a float64"),
+                        ('{"data": [[0, 1, 1%s]]}' % ("0" * 5000), "not valid JSON"),
+                        ("[" * 100_000, "not valid JSON")]:
+        (tmp_path / "b.json").write_text(body)
+        with pytest.raises(ValueError, match=match):
+            hbjax.load_recording(tmp_path / "b.json")
+
+
+def test_normalise_blames_h_m_for_inf():
+    with pytest.raises(ValueError, match="`h_m`"):
+        hbjax.normalise(M, np.inf)
+
+
+# ----------------------------------------------------------------------------- the command line
+
+
+def test_outputs_are_checked_before_any_work_and_written_together(tmp_path):
+    model = hbjax.save_model(tmp_path / "m.json", M)
+    rec = hbjax.save_recording(tmp_path / "r.csv", hbjax.Recording(np.linspace(-3, 3, 40), np.zeros(40)))
+    config = tmp_path / "c.json"
+    config.write_text('{"noise_std": 0.1, "lengths": [40], "realisations": 2}')
+    cases = [
+        (("diagnose", "--model", model, rec, "--json", tmp_path / "X", "--save-model", tmp_path / "X"), "--json and --save-model name the same file"),
+        (("montecarlo", "--config", config, "--out", tmp_path / "s.json", "--plot", tmp_path / "s.bmpx"), "unsupported figure format 'bmpx'"),
+        (("montecarlo", "--config", config, "--out", tmp_path / "s.json", "--plot", tmp_path / "s.json"), "name the same file"),
+        (("montecarlo", "--config", config, "--out", config), "would replace the config file"),
+        (("identify", "fit", "--na", 1, "--nb", 1, "--m", 2, rec, "--out", rec, "--force"), "would replace the input file"),
+        (("simulate", "--model", model, "--input", rec, "--out", "-"), "standard output"),
+    ]
+    for argv, match in cases:
+        status, out, err = cli(*argv)
+        assert status == 1 and match in err, (argv, err)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "m.json", "r.csv"], argv
+    (tmp_path / "v2.csv").write_text("keep")
+    status, _, err = cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", 40, "--prefix", tmp_path / "v")
+    assert status == 1 and "v2.csv' already exists" in err
+    assert not (tmp_path / "v1.csv").exists() and (tmp_path / "v2.csv").read_text() == "keep"
+
+
+def test_cli_errors_name_the_subcommand_and_options_as_typed(tmp_path):
+    rec = hbjax.save_recording(tmp_path / "r.csv", hbjax.Recording(np.linspace(-3, 3, 40), np.zeros(40)))
+    status, _, err = cli("identify", "fit", "--na", 2, "--nb", 2, "--m", 0, rec, "--out", tmp_path / "f.json")
+    assert status == 1 and err.startswith("hbjax identify fit: error:") and "`--m`" in err
+    status, _, err = cli("simulate", "--model", hbjax.save_model(tmp_path / "m.json", M), "--input", rec,
+                         "--out", tmp_path / "y.csv", "--noise-std", "nan")
+    assert status == 1 and "--noise-std must be a finite number" in err
+    config = tmp_path / "c.json"
+    config.write_text('{"noise_std": 0.1, "lengths": [40], "realisations": 2, "keep_estimates": "false"}')
+    status, _, err = cli("montecarlo", "--config", config, "--out", tmp_path / "s.json", "--no-progress")
+    assert status == 1 and "`keep_estimates` must be true or false" in err
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@pytest.mark.skipif(not pathlib.Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_ctrl_c_during_a_study_exits_130_cleanly(tmp_path):
+    config = tmp_path / "c.json"
+    config.write_text('{"noise_std": 0.5, "lengths": [2000], "realisations": 200000}')
+    outcomes = []
+    for cpu in (3.0, 6.0, 9.0):  # interrupt at different stages: set-up, compiling, running
+        proc = subprocess.Popen([sys.executable, "-m", "hbjax", "montecarlo", "--config", config,
+                                 "--out", tmp_path / "s.json"], stderr=subprocess.PIPE,
+                                stdout=subprocess.DEVNULL, cwd=tmp_path)
+        while proc.poll() is None and _cpu_seconds(proc.pid) < cpu:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=0.1)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=300)
+        outcomes.append((proc.returncode, b"interrupted" in err))
+    assert outcomes == [(130, True)] * 3
+    assert not (tmp_path / "s.json").exists()
+
+
+# ----------------------------------------------------------------------------- properties
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@FS
+@given(v=st.lists(finite, min_size=1, max_size=30), data=st.data(),
+       dt=st.one_of(st.none(), st.floats(min_value=1e-300, max_value=1e10)),
+       t0=st.floats(-1e6, 1e6), suffix=st.sampled_from(["csv", "npz"]))
+def test_any_recording_written_reads_back_bit_for_bit(tmp_path, v, data, dt, t0, suffix):
+    y = data.draw(st.lists(finite, min_size=len(v), max_size=len(v)))
+    chan = data.draw(st.lists(finite, min_size=len(v), max_size=len(v)))
+    rec = hbjax.Recording(v, y, dt=dt, t0=t0, channels={"force 2": chan})
+    p = hbjax.save_recording(tmp_path / f"r.{suffix}", rec, overwrite=True)
+    same_recording(rec, hbjax.load_recording(p))
+    if dt is not None and suffix == "csv":
+        same_recording(rec, hbjax.load_recording(p, time="t"))
+
+
+@FS
+@given(c=st.lists(st.floats(-1e6, 1e6), min_size=1, max_size=8),
+       a=st.lists(st.floats(-0.9, 0.9), min_size=0, max_size=4),
+       b=st.lists(finite, min_size=1, max_size=4))
+def test_any_model_written_reads_back_bit_for_bit(tmp_path, c, a, b):
+    model = hbjax.Hammerstein(hbjax.Backlash(c, [x + 1.0 for x in c]), hbjax.ARX(a, b))
+    back = hbjax.load_model(hbjax.save_model(tmp_path / "m.json", model, overwrite=True))
+    for x, z in zip(jax.tree_util.tree_leaves(model), jax.tree_util.tree_leaves(back)):
+        assert np.asarray(x).tobytes() == np.asarray(z).tobytes()
+
+
+def _sample_files(tmp):
+    rec = hbjax.Recording(np.linspace(-1, 1, 8), np.arange(8.0), dt=0.25, channels={"c": np.ones(8)})
+    return {"csv": hbjax.save_recording(tmp / "s.csv", rec, overwrite=True).read_bytes(),
+            "npz": hbjax.save_recording(tmp / "s.npz", rec, overwrite=True).read_bytes(),
+            "json": hbjax.save_model(tmp / "s.json", M, overwrite=True).read_bytes()}
+
+
+@FS
+@given(kind=st.sampled_from(["csv", "npz", "json"]), cut=st.floats(0, 1),
+       noise=st.binary(max_size=64), where=st.floats(0, 1), mode=st.sampled_from(["cut", "splice", "random"]))
+def test_damaged_files_raise_only_documented_errors(tmp_path, kind, cut, noise, where, mode):
+    good = _sample_files(tmp_path)[kind]
+    if mode == "cut":
+        data = good[: int(cut * len(good))]
+    elif mode == "splice":
+        i = int(where * len(good))
+        data = good[:i] + noise + good[i + len(noise):]
+    else:
+        data = noise
+    p = tmp_path / f"bad.{kind}"
+    p.write_bytes(data)
+    load = hbjax.load_model if kind == "json" else hbjax.load_recording
+    try:
+        load(p)
+    except DOCUMENTED:
+        pass
