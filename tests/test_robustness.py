@@ -33,7 +33,7 @@ import pytest
 
 import hbjax
 from hbjax._cli.parser import main as cli_main
-from hbjax._io.modelfile import ModelFileError
+from hbjax import ModelFileError
 
 # ----------------------------------------------------------------------------- fixtures
 # Module-level, built lazily: table entries are lambdas ``call(tmp)`` with ``tmp`` a fresh
@@ -153,6 +153,8 @@ KEY = "wrong key type"
 OPTION = "unknown option or name"
 IDENT = "records that do not identify the parameters"
 FILES = "files: missing, corrupted, existing, bad folder"
+HOSTILE = "files: hostile or loose content (huge numbers, deep nesting, 1_000, degree cap)"
+OUTPUTS = "outputs: special files, '-', clashes, checked before any work"
 CLI = "command line"
 
 # --- wrong types
@@ -457,6 +459,34 @@ bad(FILES, "load_recording", ValueError, "not a readable .npz archive", lambda t
 bad(FILES, "load_recording", ValueError, "not valid JSON", lambda t: hbjax.load_recording(text_file(t, "r.json", "{")))
 bad(FILES, "save_recording", FileExistsError, "already exists", lambda t: hbjax.save_recording(text_file(t, "r.csv", "old"), hbjax.Recording(V, Y)))
 
+# --- hostile content and output paths (tests/test_files_adversarial.py has the round trips)
+MF = lambda t, text: text_file(t, "h.json", model_file(t).read_text().replace('"format_version": 1', text))  # noqa: E731
+bad(HOSTILE, "load_model", ModelFileError, "not a valid JSON model file", lambda t: hbjax.load_model(MF(t, '"format_version": 1' + "0" * 5000)))
+bad(HOSTILE, "load_model", ModelFileError, "not a valid JSON model file", lambda t: hbjax.load_model(MF(t, '"format_version": ' + "[" * 50000 + "]" * 50000)))
+bad(HOSTILE, "load_model", ModelFileError, "not a valid JSON model file .*NaN", lambda t: hbjax.load_model(MF(t, '"format_version": NaN')))
+bad(HOSTILE, "load_model", ModelFileError, "unknown model class 'hbjax.__main__.X'", lambda t: hbjax.load_model(text_file(t, "h.json", model_file(t).read_text().replace('"class": "Hammerstein"', '"class": "hbjax.__main__.X"', 1))))
+bad(HOSTILE, "load_model", ModelFileError, "at most m = 64", lambda t: hbjax.load_model(text_file(t, "h.json", '{"format": "hbjax-model", "format_version": 1, "kind": "Backlash", "model": {"class": "Backlash", "fields": {"c1": {"array": [], "dtype": "float64", "shape": [9000000]}, "c2": {"array": [], "dtype": "float64", "shape": [9000000]}}}}')))
+bad(HOSTILE, "Backlash", ValueError, "at most m = 64", lambda t: hbjax.Backlash(np.ones(65), np.ones(65)))
+bad(HOSTILE, "load_recording", ValueError, "non-numeric cell '1_000' at row 2", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n1_000,2\n")))
+bad(HOSTILE, "load_recording", ValueError, "non-numeric cell '\uff11' at row 2", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n\uff11,2\n")))
+bad(HOSTILE, "load_recording", ValueError, "too large for a float64", lambda t: hbjax.load_recording(text_file(t, "r.json", '{"data": [[0, 1, 1%s]]}' % ("0" * 400))))
+bad(HOSTILE, "load_recording", ValueError, "nested too deeply", lambda t: hbjax.load_recording(text_file(t, "r.json", "[" * 100000)))
+bad(HOSTILE, "load_recording", ValueError, "'dt' must hold one real number", lambda t: hbjax.load_recording((np.savez(t / "r.npz", v=V, y=Y, dt=np.ones(2)), t / "r.npz")[1]))
+bad(HOSTILE, "load_recording", ValueError, "array 'v' must be real", lambda t: hbjax.load_recording((np.savez(t / "r.npz", v=V + 1j, y=Y), t / "r.npz")[1]))
+bad(HOSTILE, "load_recording", IsADirectoryError, "is a directory", lambda t: hbjax.load_recording(t))
+bad(HOSTILE, "load_model", IsADirectoryError, "is a directory", lambda t: hbjax.load_model(t))
+bad(HOSTILE, "normalise", ValueError, "`h_m` must be finite, got inf", lambda t: hbjax.normalise(M, np.inf))
+bad(OUTPUTS, "save_recording", ValueError, "exceeds the largest float64", lambda t: hbjax.save_recording(t / "r.csv", hbjax.Recording([1.0, 2, 3], [1.0, 2, 3], dt=1e308)))
+bad(OUTPUTS, "save_recording", ValueError, "BRFD layout", lambda t: hbjax.save_recording(t / "r.json", hbjax.Recording(V, Y)))
+bad(OUTPUTS, "save_model", ValueError, "standard output", lambda t: hbjax.save_model("-", M))
+bad(OUTPUTS, "hbjax simulate", CLIError, "exit 1: hbjax simulate: error: --out: '-' is not a file name", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", "-"))
+bad(OUTPUTS, "hbjax montecarlo", CLIError, "exit 1: .*unsupported figure format 'bmpx'", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--plot", t / "s.bmpx"))
+bad(OUTPUTS, "hbjax montecarlo", CLIError, "exit 1: .*--out and --plot name the same file", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--plot", t / "s.json"))
+bad(OUTPUTS, "hbjax diagnose", CLIError, "exit 1: .*--json and --save-model name the same file", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", "v,y\n1,2\n"), "--json", t / "X", "--save-model", t / "X"))
+bad(OUTPUTS, "hbjax signals", CLIError, "exit 1: .*v2.csv' already exists", lambda t: (text_file(t, "v2.csv", "keep"), cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", 40, "--prefix", t / "v"))[1])
+bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--noise-std must be a finite number >= 0, got nan", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", t / "y.csv", "--noise-std", "nan"))
+bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*`keep_estimates` must be true or false", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [40], "realisations": 2, "keep_estimates": "false"}'), "--out", t / "s.json", "--no-progress"))
+
 # --- command line (in-process; exit status and the one-line message)
 bad(CLI, "hbjax (no command)", CLIError, "exit 2: usage: hbjax", lambda t: cli())
 bad(CLI, "hbjax show", CLIError, "exit 1: hbjax show: error: model file .* does not exist", lambda t: cli("show", t / "missing.json"))
@@ -465,19 +495,20 @@ bad(CLI, "hbjax signals", CLIError, "exit 1: .*--design .*`h_m` must be a finite
 bad(CLI, "hbjax signals", CLIError, "exit 1: .*--design needs exactly n, m and h_m", lambda t: cli("signals", "--design", "n=2,m=3", "--samples", 40, "--prefix", t / "v"))
 bad(CLI, "hbjax signals", CLIError, "exit 1: .*`T` must be an integer >= 18, got 10", lambda t: cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", 10, "--prefix", t / "v"))
 bad(CLI, "hbjax signals", CLIError, "exit 2: .*--samples: invalid int value", lambda t: cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", "many"))
-bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--noise-std must be >= 0", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", t / "y.csv", "--noise-std", -1))
+bad(CLI, "hbjax simulate", CLIError, "exit 1: hbjax simulate: error: --noise-std must be a finite number >= 0", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", t / "y.csv", "--noise-std", -1))
 bad(CLI, "hbjax simulate", CLIError, "exit 1: .*not finite\\) at row 3", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\ninf\n"), "--out", t / "y.csv"))
-bad(CLI, "hbjax simulate", CLIError, "exit 1: .*already exists", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", model_file(t)))
+bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--out .* would replace the input file", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", model_file(t)))
+bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--out: .* already exists; pass --force", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", text_file(t, "old.csv", "old")))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*unknown config keys \\['sigma'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"sigma": 1, "noise_std": 0.1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*missing config keys \\['realisations'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [40]}'), "--out", t / "s.json", "--no-progress"))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*`noise_std` must be a finite number >= 0", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": -1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
 REC_CSV = "v,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(V_R, Y_R))
-bad(CLI, "hbjax identify fit", CLIError, "exit 1: .*`na` must be an integer >= 0, got -1", lambda t: cli("identify", "fit", "--na", -1, "--nb", 2, "--m", 3, text_file(t, "rec.csv", REC_CSV), "--out", t / "fit.json"))
+bad(CLI, "hbjax identify fit", CLIError, "exit 1: hbjax identify fit: error: .*`--na` must be an integer >= 0, got -1", lambda t: cli("identify", "fit", "--na", -1, "--nb", 2, "--m", 3, text_file(t, "rec.csv", REC_CSV), "--out", t / "fit.json"))
 bad(CLI, "hbjax identify fit", CLIError, "exit 2: .*--criterion: invalid choice: 'mse'", lambda t: cli("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, "--criterion", "mse", text_file(t, "rec.csv", REC_CSV), "--out", t / "fit.json"))
 bad(CLI, "hbjax identify fit", CLIError, "exit 1: .*non-numeric cell 'x' at row 3", lambda t: cli("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, text_file(t, "rec.csv", "v,y\n1,2\n3,x\n"), "--out", t / "fit.json"))
 DIAG_CSV = "v,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(V_D, Y_D))
-bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*`holdout` must be a fraction in \\(0, 1\\), got 1.5", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", DIAG_CSV), "--holdout", 1.5))
-bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*unknown effect name\\(s\\) in `effects`: \\['friction'\\]", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", DIAG_CSV), "--effects", "friction"))
+bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*`--holdout` must be a fraction in \\(0, 1\\), got 1.5", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", DIAG_CSV), "--holdout", 1.5))
+bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*unknown effect name\\(s\\) in `--effects`: \\['friction'\\]", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", DIAG_CSV), "--effects", "friction"))
 bad(CLI, "hbjax identify giri", CLIError, "exit 1: .*`y\\d` has \\d+ samples; it must cover at least", lambda t: cli("identify", "giri", "--design", "n=2,m=3,h_m=4", *[text_file(t, f"y{k}.csv", "y\n1\n2\n3\n") for k in (1, 2, 3)], "--out", t / "m2.json"))
 
 
