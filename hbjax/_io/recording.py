@@ -678,7 +678,8 @@ def save_recording(path, recording: Recording, *, overwrite: bool = False) -> pa
             f"{str(path)!r}: save_recording writes CSV or .npz; a .json file would be read back "
             "as the BRFD layout. Choose a .csv or .npz name."
         )
-    t = recording.t
+    with np.errstate(over="ignore"):  # an overflow is refused just below
+        t = recording.t
     if not np.all(np.isfinite(t)):
         k = int(np.flatnonzero(~np.isfinite(t))[0])
         raise ValueError(
