@@ -6,6 +6,7 @@ from ._core.backlash import Backlash as Backlash
 from ._core.defaults import default_design as default_design, default_system as default_system
 from ._identify.giri import GiriResult as GiriResult, identify_giri as identify_giri, normalise as normalise
 from ._core.model import AbstractModel as AbstractModel, Hammerstein as Hammerstein
+from ._results import RESULTS as RESULTS
 from ._core.params import (
     flatten_params as flatten_params,
     param_names as param_names,

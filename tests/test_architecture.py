@@ -120,3 +120,53 @@ def test_model_files_naming_anything_else_import_nothing(tmp_path, name):
     with pytest.raises(ValueError, match="unknown model class"):
         hbjax.load_model(bad)
     assert set(sys.modules) == before
+
+
+def _quickstart_records(n=600, sigma=0.3):
+    model, design = hbjax.default_system(), hbjax.default_design()
+    inputs = [design.constant_input(n), design.binary_input(n), design.staircase_input(n)]
+    keys = jax.random.split(jax.random.key(0), 3)
+    outputs = [hbjax.simulate(model, v, sigma * jax.random.normal(k, (n,)))
+               for v, k in zip(inputs, keys)]
+    return model, design, inputs, outputs
+
+
+def test_one_result_enumeration_for_closed_form_refinement_and_fit():
+    import optimistix as optx
+
+    assert issubclass(hbjax.RESULTS, optx.RESULTS)
+    model, design, inputs, outputs = _quickstart_records()
+    giri = hbjax.identify_giri(design, *outputs)
+    assert giri.result == hbjax.RESULTS.successful and giri.message == "success"
+    zeros = [jnp.zeros_like(y) for y in outputs]
+    failed = hbjax.identify_giri(design, *zeros, throw=False)
+    assert failed.result != hbjax.RESULTS.successful
+    assert failed.message == hbjax.RESULTS[failed.result]
+    refined = hbjax.refine(giri.model, list(zip(inputs, outputs)), h_m=design.h_m, max_steps=1,
+                           throw=False)
+    assert refined.result == hbjax.RESULTS.nonlinear_max_steps_reached
+
+
+def test_throw_raises_under_jit_too():
+    model, design, inputs, outputs = _quickstart_records()
+    start = hbjax.identify_giri(design, *outputs).model
+    records = list(zip(inputs, outputs))
+
+    @jax.jit
+    def refine_model(records):
+        return hbjax.refine(start, records, h_m=design.h_m, max_steps=1).model
+
+    with pytest.raises(Exception, match="maximum number of steps"):
+        jax.block_until_ready(refine_model(records))
+
+    @jax.jit
+    def closed_form(y1, y2, y3):
+        return hbjax.identify_giri(design, y1, y2, y3).model
+
+    zeros = [jnp.zeros_like(y) for y in outputs]
+    with pytest.raises(Exception, match="singular|assumption"):
+        jax.block_until_ready(closed_form(*zeros))
+    # throw=False under jit returns the failure as a value instead
+    quiet = jax.jit(lambda r: hbjax.refine(start, r, h_m=design.h_m, max_steps=1,
+                                           throw=False).result)(records)
+    assert quiet == hbjax.RESULTS.nonlinear_max_steps_reached

@@ -24,6 +24,7 @@ from .._core.model import Hammerstein, lagged
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_criterion, total_samples
 from .quality import SIM_FIT_FLOOR
+from .._results import code as result_code, raise_if_failed
 from .refine import (
     RESULTS, RefinementError, check_floor, describe, extrapolated_ranges, refine_traceable,
     unidentified_names,
@@ -36,7 +37,7 @@ class FitResult(eqx.Module):
     - `model`: the best local optimum (lowest cost among converged starts), in the
       static-gain normalisation ``B(1) = 1`` with ``P1`` the branch a rising input drives
       the output onto (see :func:`fit`).
-    - `result`, `message`: result code of that start (:class:`hbjax._identify.refine.RESULTS`);
+    - `result`, `message`: result code of that start (:class:`hbjax.RESULTS`);
       only stable models whose free-run fit clears the floor are successes, so the best
       start is chosen among those (``RESULTS.unstable`` / ``poor_fit`` when none is).
     - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
@@ -192,7 +193,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
                                 min_sim_fit=min_sim_fit)
 
     res = jax.vmap(one)(keys)
-    ok = res.result._value == RESULTS.successful._value
+    ok = res.result == RESULTS.successful
     costs = jnp.where(ok, res.stats["cost"], jnp.inf)
     # If no start converged, report the least bad one with its failure code.
     best = jnp.where(jnp.any(ok), jnp.argmin(costs), jnp.argmin(
@@ -215,7 +216,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         res.branches_cross[best], res.sim_fit[best], res.sim_fit_pooled[best],
         res.stable[best], jnp.where(swap, ident[perm], ident),
         jnp.where(swap, active[::-1], active), res.data_range[best], res.core_finish[best],
-        costs, params, res.result._value, spread, jnp.sum(hits) / starts, best,
+        costs, params, result_code(res.result), spread, jnp.sum(hits) / starts, best,
         criterion, "static_gain",
     )
 
@@ -289,7 +290,9 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                        max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit))
         jax.block_until_ready(res)
         bar.update(starts)
-    if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
+    if throw and is_traced(res.result._value):
+        return raise_if_failed(res)
+    if throw and res.result != RESULTS.successful:
         raise RefinementError(
             f"fit: no start succeeded; the best: {res.message}. Try more `starts` or "
             "`max_steps`, other orders, or criterion='simulation'."

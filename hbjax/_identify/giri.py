@@ -17,34 +17,18 @@ from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._core.model import Hammerstein, lagged
 from .._core.signals import GiriDesign
+from .._results import RESULTS, message, raise_if_failed
 
 
-# Result codes (also used by the Monte Carlo study to exclude failed realisations).
-SUCCESS = 0
-NONFINITE = 1
-SINGULAR_LS = 2
-ZERO_STATIC_GAIN = 3
-GAP_NOT_CROSSED = 4
-SINGULAR_VANDERMONDE = 5
-UNSTABLE_A = 6
-RESULT_MESSAGES = {
-    SUCCESS: "success",
-    NONFINITE: "non-finite values in the records or the estimate",
-    SINGULAR_LS: (
-        "the least-squares system (26) is singular: v2 does not excite A, B* (does the "
-        "+-h_m swing cross the backlash gap? assumption A4)"
-    ),
-    ZERO_STATIC_GAIN: "B*(1) is not significantly different from 0 (assumption A5 fails)",
-    GAP_NOT_CROSSED: (
-        "the data contradict the design: v = +h_m does not put the output on P1 and "
-        "v = -h_m on P2 (P2*(-h_m) - P1*(h_m) should be 1); increase h_m (assumption A4)"
-    ),
-    SINGULAR_VANDERMONDE: "the Vandermonde systems (45)-(46) are singular",
-    UNSTABLE_A: (
-        "the estimated A is unstable (assumption A3 fails): the records do not come from "
-        "a stable system, so the offset (17) and the averages of stage 3 do not converge"
-    ),
-}
+# Result codes: members of the package's one enumeration (their integer values are what the
+# Monte Carlo study stores per realisation).
+SUCCESS = int(RESULTS.successful._value)
+NONFINITE = int(RESULTS.nonfinite._value)
+SINGULAR_LS = int(RESULTS.singular_ls._value)
+ZERO_STATIC_GAIN = int(RESULTS.zero_static_gain._value)
+GAP_NOT_CROSSED = int(RESULTS.gap_not_crossed._value)
+SINGULAR_VANDERMONDE = int(RESULTS.singular_vandermonde._value)
+UNSTABLE_A = int(RESULTS.unstable_a._value)
 _COND_LIMIT = 1e12
 # The normalisation makes P2*(-h_m) - P1*(h_m) = 1 (section 4.1); stage 3 measures both
 # values independently, so a large departure means the +-h_m swing did not cross the gap.
@@ -63,7 +47,8 @@ class GiriResult(eqx.Module):
     - `gap`: measured ``P2*(-h_m) - P1*(h_m)`` (1 when the design assumptions hold).
     - `noise_std`: residual standard deviation of the LS stage (estimate of ``std(xi)``).
     - `b_star_sum_std`: standard error of ``B*(1)``.
-    - `result`: integer code, 0 on success (see `message`).
+    - `result`: a :class:`hbjax.RESULTS` member, ``RESULTS.successful`` on success (see
+      `message`).
     """
 
     model: Hammerstein
@@ -77,11 +62,11 @@ class GiriResult(eqx.Module):
     gap: Float[Array, ""]
     noise_std: Float[Array, ""]
     b_star_sum_std: Float[Array, ""]
-    result: Int[Array, ""]
+    result: RESULTS
 
     @property
     def message(self) -> str:
-        return RESULT_MESSAGES[int(self.result)]
+        return message(self.result)
 
     def summary(self) -> display.Summary:
         """The normalised estimates, the design checks (gap, condition numbers) and the
@@ -241,18 +226,18 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
     model = Hammerstein(Backlash(c1, c2), ARX(a, b_star))
     params = jnp.concatenate([a, b_star, c1, c2])
     zero_gain = jnp.abs(b_sum) <= 4 * b_sum_std + 1e-8 * jnp.sum(jnp.abs(b_star))
-    code = jnp.select(
-        [
-            ~finite,
-            ~(cond_ls < _COND_LIMIT),
-            ~_is_stable(a),
-            zero_gain,
-            ~jnp.all(jnp.isfinite(params)) | ~(cond_v[1] < _COND_LIMIT),
-            ~(jnp.abs(gap - 1.0) <= _GAP_TOLERANCE),
-        ],
-        [NONFINITE, SINGULAR_LS, UNSTABLE_A, ZERO_STATIC_GAIN, SINGULAR_VANDERMONDE, GAP_NOT_CROSSED],
-        SUCCESS,
-    )
+    # The first failing check names the result (checks in the order the stages run).
+    checks = [
+        (~finite, RESULTS.nonfinite),
+        (~(cond_ls < _COND_LIMIT), RESULTS.singular_ls),
+        (~_is_stable(a), RESULTS.unstable_a),
+        (zero_gain, RESULTS.zero_static_gain),
+        (~jnp.all(jnp.isfinite(params)) | ~(cond_v[1] < _COND_LIMIT), RESULTS.singular_vandermonde),
+        (~(jnp.abs(gap - 1.0) <= _GAP_TOLERANCE), RESULTS.gap_not_crossed),
+    ]
+    code = RESULTS.successful
+    for failed, item in reversed(checks):
+        code = RESULTS.where(failed, item, code)
     return GiriResult(
         model, offset, transient, used, rows, plateaus, cond_ls, cond_v, gap, noise_std,
         b_sum_std, code,
@@ -330,6 +315,8 @@ def identify_giri(design: GiriDesign, y1, y2, y3, *, v1=None, v2=None, v3=None,
         if transient >= y1.shape[0] - 1:
             raise ValueError(f"`transient` ({transient}) leaves no sample of `y1` ({y1.shape[0]}).")
     res = _estimate_jit(design, y1, y2, y3, transient)
-    if throw and not any(is_traced(x) for x in (y1, y2, y3)) and int(res.result) != SUCCESS:
+    if throw and is_traced(res.result._value):
+        return raise_if_failed(res)
+    if throw and res.result != RESULTS.successful:
         raise ValueError(f"identify_giri failed: {res.message}.")
     return res

@@ -25,41 +25,13 @@ from .criteria import (
     lower_is_p1, residuals,
 )
 from .._core.model import Hammerstein
+from .._results import RESULTS, raise_if_failed
 from .._core.params import flatten_params, param_names
 from .quality import (
     SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
 )
 from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 from .sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
-
-
-class RESULTS(optx.RESULTS):  # pyright: ignore
-    """Optimistix result codes plus the ones specific to refinement."""
-
-    gauge_undefined = (
-        "the normalisation cannot be applied to the initial model: mu = P2(-h_m) - P1(h_m) "
-        "is 0 (paper gauge) or B(1) is 0 (static-gain gauge)"
-    )
-    branches_cross = (
-        "the refined branches P1 and P2 cross at recorded inputs where the crossing decides "
-        "the output: the estimate's labelled band and the core operator (L = min, H = max) "
-        "disagree on the data"
-    )
-    unstable = (
-        "the identified linear block is unstable (a pole on or outside the unit circle; "
-        "assumption A3): the model cannot be simulated; try other orders, more data, or "
-        "criterion='simulation'"
-    )
-    poor_fit = (
-        "the identified model's free-run simulation fit on its own estimation data is below "
-        "the floor (hbjax._identify.quality.SIM_FIT_FLOOR, 0 %: worse than each record's "
-        "mean); see .sim_fit; try other orders (na, nb, m) or criterion='simulation'"
-    )
-    closing_loop = (
-        "the branches meet or cross inside the recorded input range (a closing hysteresis "
-        "loop) and the model does not reproduce the data (free-run fit below the floor, "
-        "see .sim_fit): more excitation around the meeting point or another degree m"
-    )
 
 
 class RefinementError(ValueError):
@@ -599,7 +571,9 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     min_sim_fit = check_floor(min_sim_fit)
     res = _refine_jit(model, recs, criterion, h_m, max_steps, positive_float(rtol, "rtol"),
                       positive_float(atol, "atol"), min_sim_fit)
-    if throw and not is_traced(res.result._value) and res.result != RESULTS.successful:
+    if throw and is_traced(res.result._value):
+        return raise_if_failed(res)
+    if throw and res.result != RESULTS.successful:
         quality = res.result in (RESULTS.unstable, RESULTS.poor_fit, RESULTS.closing_loop,
                                  RESULTS.branches_cross)
         raise RefinementError(

@@ -18,6 +18,7 @@ from .criteria import PREDICTION, internal_signal, lagged_rows, lower_is_p1
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_h_m, check_model, total_samples
+from .._results import raise_if_failed
 from .refine import (
     RESULTS, RefinementError, RefineResult, _check_gauge, _flat_residuals, finish,
     gauge_transform, make_parametrisation, residual_summary, summarise,
@@ -130,6 +131,8 @@ def separable_ls(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 2
         _check_gauge(model, h_m)
     res = _separable_jit(model, recs, h_m=h_m, max_steps=max_steps, rtol=positive_float(rtol, "rtol"),
                          atol=positive_float(atol, "atol"))
+    if throw and is_traced(res.result._value):
+        return raise_if_failed(res)
     if throw and res.result != RESULTS.successful:
         raise RefinementError(f"separable_ls did not converge: {res.message}.")
     return res

@@ -43,6 +43,8 @@ from .._core.model import AbstractModel
 FORMAT = "hbjax-model"
 FORMAT_VERSION = 1
 _DTYPES = {"float64", "float32", "int64", "int32", "bool"}
+# A model saved without 64-bit mode holds float32 coefficients: it loads as it was saved.
+_FLOATS = (jnp.float32, jnp.float64)
 
 
 class ModelFileError(ValueError):
@@ -362,17 +364,18 @@ def _check_arrays(module, cls, where):
     if isinstance(module, Backlash):
         c1, c2 = module.c1, module.c2
         if not (isinstance(c1, jax.Array) and isinstance(c2, jax.Array) and c1.ndim == 1
-                and c1.shape == c2.shape and c1.shape[0] >= 1 and c1.dtype == jnp.float64
-                and c2.dtype == jnp.float64):
-            raise ModelFileError(f"`{where}` (Backlash) needs c1, c2 float64 1-D of equal length >= 1.")
+                and c1.shape == c2.shape and c1.shape[0] >= 1 and c1.dtype == c2.dtype
+                and c1.dtype in _FLOATS):
+            raise ModelFileError(
+                f"`{where}` (Backlash) needs c1, c2 float64 or float32 1-D of equal length >= 1.")
         if not (np.all(np.isfinite(c1)) and np.all(np.isfinite(c2))):
             raise ModelFileError(f"`{where}` (Backlash) has non-finite coefficients.")
     if isinstance(module, ARX):
         a, b = module.a, module.b
         if not (isinstance(a, jax.Array) and isinstance(b, jax.Array) and a.ndim == 1
-                and b.ndim == 1 and b.shape[0] >= 1 and a.dtype == jnp.float64
-                and b.dtype == jnp.float64):
-            raise ModelFileError(f"`{where}` (ARX) needs a, b float64 1-D with nb >= 1.")
+                and b.ndim == 1 and b.shape[0] >= 1 and a.dtype == b.dtype
+                and a.dtype in _FLOATS):
+            raise ModelFileError(f"`{where}` (ARX) needs a, b float64 or float32 1-D with nb >= 1.")
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
             raise ModelFileError(f"`{where}` (ARX) has non-finite coefficients.")
 

@@ -24,15 +24,24 @@ from .._identify.giri import NONFINITE, estimate_giri, normalise
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, param_names
 from .._core.signals import GiriDesign
+from .._results import RESULTS
 from .study import Study
 
 
 # Default chunk: realisation-samples per device (realisations x record length). On CPU a
 # chunk whose records stay in cache runs 2-3x faster than one streaming through memory
 # (measured: 26 realisations of 10 000 samples beat 419), and memory stays far below 2 GB;
-# long records keep at least 16 realisations per chunk so the time loop is amortised.
+# long records keep at least 16 realisations per chunk so the time loop is amortised, and
+# short ones at most 64, so that a small study pads little.
+#
+# The per-device batch is a function of the record length (and `chunk_size`) only, never of
+# the number of realisations or devices: XLA compiles a vmapped estimator to different
+# reduction orders for different batch sizes (the sums over time differed by up to 7e-15 at
+# N = 1200 between batches of 96 and 130), so a fixed batch, a padded last chunk and keys
+# ``fold_in(key, r)`` make every realisation's estimate the same bits whatever the layout.
 _CHUNK_SAMPLES = 2**18
 _MIN_CHUNK = 16
+_MAX_CHUNK = 64
 _AXIS = "realisations"
 
 
@@ -102,14 +111,10 @@ def _giri(design, y1, y2, y3):
     return estimate_giri(design, y1, y2, y3)
 
 
-# Refinement result codes are reported after the closed form's, shifted by this offset.
-REFINE_CODE_OFFSET = 100
-
-
 def _refined(design, y1, y2, y3):
     """Closed form (the initial model), then prediction-error refinement on the three
-    experiments (issue 3). A failed closed form keeps its own code; a failed refinement
-    reports ``REFINE_CODE_OFFSET + `` its optimistix/refinement code."""
+    experiments. A failed closed form keeps its own result; otherwise the refinement's
+    (one enumeration, :class:`hbjax.RESULTS`, for both)."""
     from .._identify.refine import refine_traceable
 
     first = estimate_giri(design, y1, y2, y3)
@@ -119,10 +124,48 @@ def _refined(design, y1, y2, y3):
     recordings = tuple((jnp.asarray(v), y) for v, y in zip(inputs, (y1, y2, y3)))
     res = refine_traceable(first.model, recordings, criterion="prediction", h_m=design.h_m,
                            max_steps=64)
-    code = jnp.asarray(getattr(res.result, "_value", res.result), jnp.int32)
-    code = jnp.where(first.result != 0, first.result,
-                     jnp.where(code != 0, REFINE_CODE_OFFSET + code, 0))
-    return _Outcome(res.model, code)
+    result = RESULTS.where(first.result != RESULTS.successful, first.result, res.result)
+    return _Outcome(res.model, result)
+
+
+def _per_device(length, chunk_size):
+    """Realisations per device per chunk: from `length` and `chunk_size` only (see above).
+    At least 2: XLA compiles a batch of one to different code (it drops the unit axis)."""
+    if chunk_size is not None:
+        return max(2, chunk_size)
+    return min(_MAX_CHUNK, max(_MIN_CHUNK, _CHUNK_SAMPLES // length))
+
+
+def _result_code(result):
+    """The int32 result code of one realisation from an estimator's ``.result``: an integer
+    (or boolean) scalar, 0 = success. Refused at trace time when it is not an integer; a
+    value outside the int32 range is clipped to its ends, so that a non-zero code never
+    wraps to 0 (success)."""
+    raw = getattr(result, "_value", result)
+    try:
+        raw = jnp.asarray(raw)
+    except (TypeError, ValueError, OverflowError) as err:
+        raise TypeError(
+            "the `estimator`'s `.result` must be an integer result code (0 = success), got "
+            f"{type(raw).__name__}: {err}"
+        ) from None
+    if not (jnp.issubdtype(raw.dtype, jnp.integer) or raw.dtype == jnp.bool_):
+        raise TypeError(
+            "the `estimator`'s `.result` must be an integer result code (0 = success), got "
+            f"dtype {raw.dtype}; a float code such as 0.7 would be truncated to 0 (success)."
+        )
+    if raw.size != 1:
+        raise ValueError(
+            "the `estimator`'s `.result` must be one result code per realisation, got shape "
+            f"{tuple(raw.shape)}."
+        )
+    raw = raw.reshape(())
+    if raw.dtype == jnp.bool_:
+        return raw.astype(jnp.int32)
+    have, want = jnp.iinfo(raw.dtype), jnp.iinfo(jnp.int32)
+    if have.min < want.min or have.max > want.max:
+        raw = jnp.clip(raw, max(have.min, want.min), min(have.max, want.max))
+    return raw.astype(jnp.int32)
 
 
 def _resolve_estimator(estimator):
@@ -176,7 +219,7 @@ def _chunk_fn(design, length, noise, draw, estimator, impl):
                 f"got {type(res.model).__name__}."
             )
         theta = flatten_params(res.model)
-        code = jnp.asarray(getattr(res.result, "_value", res.result), jnp.int32).reshape(())
+        code = _result_code(res.result)
         code = jnp.where((code == 0) & ~jnp.all(jnp.isfinite(theta)), NONFINITE, code)
         return theta, code
 
@@ -196,8 +239,13 @@ def _chunk_fn(design, length, noise, draw, estimator, impl):
     return chunk
 
 
-# Compiled chunk executables, keyed by everything that shapes the program (not the values
-# of the model parameters or the noise level): repeated studies do not recompile.
+# Compiled chunk executables of the built-in estimators and noises, keyed by everything
+# that shapes the program (not the values of the model parameters or the noise level):
+# repeated studies do not recompile. A user's callable is traced again on every call: what
+# it computes may depend on state that neither equality nor identity sees (the object
+# behind a bound method, a global it reads), and a cached program would silently reuse
+# the first study's. (JAX's persistent compilation cache still skips XLA's compilation
+# when the traced program is unchanged.)
 _EXECUTABLES: dict = {}
 _MAX_EXECUTABLES = 16
 
@@ -205,13 +253,15 @@ _MAX_EXECUTABLES = 16
 def _chunk_executable(model, design, length, noise, draw, estimator, step, sharding, key):
     """The jitted, sharded ``vmap`` of one realisation over a chunk of ``step`` keys, and
     the seconds its compilation took (0 when reused)."""
-    leaves, treedef = jax.tree_util.tree_flatten(model)
-    cache_key = (treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves), design,
-                 length, noise, estimator, step, sharding, key.dtype)
-    try:
-        hit = _EXECUTABLES.get(cache_key)
-    except TypeError:  # an unhashable user callable: compile every time
-        cache_key, hit = None, None
+    cache_key, hit = None, None
+    if isinstance(noise, str) and estimator in (_giri, _refined):
+        leaves, treedef = jax.tree_util.tree_flatten(model)
+        cache_key = (treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves),
+                     design, length, noise, estimator, step, sharding, key.dtype)
+        try:
+            hit = _EXECUTABLES.get(cache_key)
+        except TypeError:  # an unhashable model extension: compile every time
+            cache_key = None
     if hit is not None:
         return hit, 0.0
     chunk = _chunk_fn(design, length, noise, draw, estimator, jax.random.key_impl(key))
@@ -296,17 +346,24 @@ def monte_carlo(
     - `estimator`: ``"giri"`` (closed form, :func:`hbjax.identify_giri`'s traceable core),
       ``"refined"`` (closed form then prediction-error refinement) or a callable
       ``(design, y1, y2, y3) -> result`` with ``.model`` (normalised Hammerstein) and
-      ``.result`` (int code, 0 = success); it must be traceable (jit/vmap) and not raise.
+      ``.result`` (integer code, 0 = success; a float code is refused, one beyond int32
+      is clipped, never wrapped to 0); it must be traceable (jit/vmap) and not raise. A
+      callable `estimator` or `noise` is traced afresh on every call, so it may read state
+      that changes between studies.
     - `noise`: ``"equation"`` (white ``xi`` of eq. (10)), ``"output"`` (white noise added to
       ``y``) or a callable ``(key, length) -> record (length,)`` used as the equation error
       ``xi`` (times `noise_std`), e.g. AR(1) coloured noise.
-    - `chunk_size`: realisations per device per chunk (default ``max(16, 2**18 // N)``), the
-      memory bound; a chunk runs ``chunk_size * n_devices`` realisations at once (at
-      least 2 per device; the last chunk is padded).
+    - `chunk_size`: realisations per device per chunk (default
+      ``min(64, max(16, 2**18 // N))``), the memory bound; a chunk runs
+      ``chunk_size * n_devices`` realisations at once (at least 2 per device; the last
+      chunk is padded). The chunk does not depend on `realisations` or on the devices, so
+      neither changes any realisation's estimate; a different `chunk_size` may change the
+      last bits (XLA's reduction order depends on the batch).
     - `progress`: tqdm bar over chunks once the study has run for more than 2 s, on a
       terminal or in a notebook; ``False`` silences it, a dict passes options to tqdm.
     - `devices`: devices to shard realisations over (default: all, ``jax.devices()``).
-      Results are bitwise identical for any number of devices.
+      Results are bitwise identical for any number of devices, and realisation ``r``'s
+      estimate is the same bits in a study of any size.
     - `keep_estimates`: keep the raw estimates in ``Study.estimates``.
 
     **Returns:** a :class:`hbjax.Study`. Failed realisations (non-zero result code) are
@@ -336,13 +393,7 @@ def monte_carlo(
 
     n_dev = len(devices)
     sharding = NamedSharding(Mesh(np.array(devices), (_AXIS,)), PartitionSpec(_AXIS))
-    # At least 2 per device: XLA compiles a batch of one to different code (it drops the
-    # unit axis), whose rounding would differ from the same realisation in a larger batch.
-    per_device = {
-        n: max(2, min(chunk_size or max(_MIN_CHUNK, _CHUNK_SAMPLES // n),
-                      -(-realisations // n_dev)))
-        for n in lengths
-    }
+    per_device = {n: _per_device(n, chunk_size) for n in lengths}
     n_chunks = {n: -(-realisations // (per_device[n] * n_dev)) for n in lengths}
     replicated = NamedSharding(sharding.mesh, PartitionSpec())
     model_r = jax.tree_util.tree_map(lambda x: _global_array(np.asarray(x), replicated), model)

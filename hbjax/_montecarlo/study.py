@@ -5,7 +5,7 @@ import equinox as eqx
 import numpy as np
 
 from .._core import display
-from .._identify.giri import RESULT_MESSAGES
+from .._results import message_of_code
 
 
 def _slope_fit(lengths, rmse, mse_var):
@@ -120,12 +120,7 @@ class Study(eqx.Module):
         out = {}
         for code in np.unique(self.codes):
             if code != 0:
-                code = int(code)
-                if code >= 100:  # see hbjax._montecarlo.run.REFINE_CODE_OFFSET
-                    msg = f"refinement failed (code {code - 100})"
-                else:
-                    msg = RESULT_MESSAGES.get(code, f"code {code}")
-                out[msg] = (self.codes == code).sum(axis=1)
+                out[message_of_code(code)] = (self.codes == code).sum(axis=1)
         return out
 
     def table(self, file=None) -> str:
