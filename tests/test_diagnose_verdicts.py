@@ -69,12 +69,14 @@ def test_recorded_channel_is_named_as_missing_input(with_channel):
 
 def test_quiet_tail_does_not_decide(with_channel):
     _, v, y, _, d = with_channel
-    # the requested 30% tail holds 300 samples at rest: the cut moves earlier until the
-    # held-out part is excited like the fitting part
+    # the requested 30% tail is nearly all at rest (300 samples): the cut moves earlier,
+    # until the held-out part is excited like the fitting part or to half the record
     assert d.split["moved"] and d.n_holdout > round(0.3 * N)
-    assert d.split["requested_ratio"]["ratio"] < 0.7 <= d.split["ratio"]["ratio"]
-    for x in (v, y):
-        assert np.std(x[d.n_fit:]) >= 0.7 * np.std(x[:d.n_fit])
+    before, after = d.split["requested_ratio"]["ratio"], d.split["ratio"]["ratio"]
+    assert before < 0.7 and after > 2 * before
+    assert after >= 0.7 or d.n_holdout == N // 2
+    ratio = min(np.std(x[d.n_fit:]) / np.std(x[:d.n_fit]) for x in (v, y, np.diff(v)))
+    assert ratio == pytest.approx(after, rel=1e-2)
     assert "moved earlier" in str(d.summary())
 
 
@@ -124,7 +126,8 @@ def test_failed_candidate_is_listed_with_why():
     v = _plateaus(rng, N)
     y = np.asarray(hbjax.simulate(model, v, 0.01 * rng.standard_normal(N)))
     d = hbjax.diagnose(model, v, y, effects=["parameter_mismatch", NaNOffset], progress=False)
-    assert "nan_offset" in d.failed and ("NaN" in d.failed["nan_offset"] or "non-finite" in d.failed["nan_offset"])
+    why = d.failed["nan_offset"]
+    assert "NaN" in why or "not finite" in why, why
     assert all(f.effect != "nan_offset" for f in d.findings)
     assert d.candidates["nan_offset"]["decision"].startswith("failed")
     assert "Failed candidates: nan_offset" in str(d.summary())
@@ -138,3 +141,28 @@ def test_bad_channels():
         hbjax.diagnose(model, v, y, channels=[1, 2], progress=False)
     with pytest.raises(ValueError, match="`split`"):
         hbjax.diagnose(model, v, y, split="random", progress=False)
+
+
+def _brfd(name, n=896, k=8):
+    r = hbjax.datasets.brfd(name)
+    m = len(r.v) // k * k
+
+    def dec(x):
+        return np.asarray(x)[:m].reshape(-1, k).mean(1)[:n]
+
+    return dec(r.v), dec(r.y), {c: dec(w) for c, w in r.channels.items()}
+
+
+def test_brfd_friction_follows_the_actuator_forces():
+    # nominal HB model from the 1 Hz / 30 lb test, diagnosed on the 0.5 Hz / 30 lb test
+    v0, y0, _ = _brfd("1Hz30lbtension1amplitude")
+    nominal = hbjax.identify_nominal(v0, y0, na=1, nb=1, m=2, gap=0.05, criterion="simulation",
+                                     transient=20)
+    v, y, channels = _brfd("0.5Hz30lbtension1amplitude")
+    actuators = {c: channels[c] for c in ("actuator force 1", "actuator force 2")}
+    d = hbjax.diagnose(nominal, v, y, criterion="simulation", channels=actuators, progress=False)
+    f = d.best
+    assert d.verdict == "explained" and f.effect == "missing_input", d.summary()
+    assert f.parameters["channel"] in actuators
+    assert set(f.parameters["channels"]) <= set(actuators)
+    assert f.fit_after - f.fit_before >= 20

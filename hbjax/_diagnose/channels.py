@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Mapping
 from typing import ClassVar
 
 import equinox as eqx
@@ -52,7 +53,7 @@ def check_channels(channels, n: int) -> dict:
     """``channels`` as ``{name: float64 array of length n}`` (finite), or ``{}``."""
     if channels is None:
         return {}
-    if not isinstance(channels, dict):
+    if not isinstance(channels, Mapping):
         raise TypeError(f"`channels` must be a dict of name -> array, got "
                         f"{type(channels).__name__}.")
     out = {}
@@ -74,8 +75,8 @@ class MissingInput(AbstractModel):
 
     with ``y_lin`` the nominal HB-Hammerstein output (eq. (10)), ``A`` its denominator and
     ``w_j = (channel_j - center_j) / scale_j`` the recorded channels (``signals``, one
-    column per channel, the record's length). It runs only on the record the channels were
-    recorded with (``v`` of the same length)."""
+    column per channel, the record's length). It runs on the record the channels were
+    recorded with, or a prefix of it (a longer input sees the last recorded values)."""
 
     base: Hammerstein
     signals: Float[Array, "time channels"]
@@ -89,11 +90,12 @@ class MissingInput(AbstractModel):
     name: ClassVar[str] = "missing_input"
 
     def _extension(self, y_lin):
-        if y_lin.shape[0] != self.signals.shape[0]:
-            raise ValueError(f"this missing_input model carries channels of "
-                             f"{self.signals.shape[0]} samples; the input has "
-                             f"{y_lin.shape[0]}.")
-        w = (self.signals - self.center) / self.scale
+        T, n = y_lin.shape[0], self.signals.shape[0]
+        # a prefix of the record sees the channels' prefix; samples past the record (the
+        # simulator's length padding, cut off afterwards) hold the last recorded value
+        sig = self.signals[:T] if T <= n else jnp.concatenate(
+            [self.signals, jnp.repeat(self.signals[-1:], T - n, axis=0)])
+        w = (sig - self.center) / self.scale
         fir = sum(lagged(w[:, j], k) * self.taps[j, k]
                   for j in range(w.shape[1]) for k in range(self.taps.shape[1]))
         fir = _all_pole(self.base.arx.a, fir + jnp.zeros_like(y_lin))
