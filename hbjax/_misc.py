@@ -36,6 +36,13 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None) -> jax.
             raise TypeError(f"`{name}` must be a numeric array, got dtype {arr.dtype}.")
         if np.iscomplexobj(arr):
             raise TypeError(f"`{name}` must be real, got complex dtype {arr.dtype}.")
+    elif not (jnp.issubdtype(x.dtype, jnp.floating) or jnp.issubdtype(x.dtype, jnp.integer)
+              or x.dtype == jnp.bool_):
+        # A traced array is checked by its dtype at trace time: a complex (or key) tracer
+        # would otherwise flow on, or be cast to its real part by a later astype.
+        kind = "real, got complex" if jnp.issubdtype(x.dtype, jnp.complexfloating) else \
+            "a numeric array, got"
+        raise TypeError(f"`{name}` must be {kind} dtype {x.dtype}.")
     out = jnp.asarray(x)
     if dtype is not None:
         out = out.astype(dtype)
@@ -95,6 +102,23 @@ def guard_finite(carrier: jax.Array, **arrays) -> jax.Array:
                 carrier, ~jnp.all(jnp.isfinite(x)), f"`{name}` contains NaN or inf."
             )
     return carrier
+
+
+def one_device(**trees) -> None:
+    """Refuse concrete arrays committed to different devices (JAX's own message names
+    internal argument paths): say which argument lives where and how to fix it."""
+    where = {}
+    for name, tree in trees.items():
+        for leaf in jax.tree_util.tree_leaves(tree):
+            if isinstance(leaf, jax.Array) and not is_traced(leaf) and leaf.committed:
+                where.setdefault(frozenset(leaf.devices()), name)
+    if len(where) > 1:
+        desc = "; ".join(f"`{name}` on {', '.join(sorted(str(d) for d in devs))}"
+                         for devs, name in where.items())
+        raise ValueError(
+            f"arrays live on different devices ({desc}): put them on one device first, "
+            "e.g. with jax.device_put(x, device)."
+        )
 
 
 def same_length(**arrays) -> None:

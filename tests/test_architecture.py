@@ -170,3 +170,24 @@ def test_throw_raises_under_jit_too():
     quiet = jax.jit(lambda r: hbjax.refine(start, r, h_m=design.h_m, max_steps=1,
                                            throw=False).result)(records)
     assert quiet == hbjax.RESULTS.nonlinear_max_steps_reached
+
+
+def test_arrays_on_different_devices_are_refused_by_name():
+    code = (
+        "import jax, numpy as np\n"
+        "jax.config.update('jax_enable_x64', True)\n"
+        "import hbjax\n"
+        "d = jax.devices()\n"
+        "m = hbjax.default_system()\n"
+        "v = jax.device_put(np.linspace(-5, 5, 60), d[0])\n"
+        "y = jax.device_put(np.zeros(60), d[1])\n"
+        "try:\n"
+        "    hbjax.refine(m, [(v, y)], h_m=4.0)\n"
+        "except ValueError as e:\n"
+        "    print(e)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**__import__("os").environ,
+                               "XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
+    assert proc.returncode == 0, proc.stderr
+    assert "different devices" in proc.stdout and "`recordings[0] y` on" in proc.stdout

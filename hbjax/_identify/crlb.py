@@ -125,7 +125,7 @@ def crlb(model: Hammerstein, recordings, *, noise_std, criterion: str = "predict
     ensure_compilation_cache()
     check_model(model)
     check_criterion(criterion)
-    recs = as_recordings(recordings)
+    recs = as_recordings(recordings, model=model)
     h_m = check_h_m(h_m)
     if not is_traced(noise_std):
         positive_float(noise_std, "noise_std")

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._misc import as_float_array, check_finite, is_traced, positive_float
+from .._misc import as_float_array, check_finite, is_traced, one_device, positive_float
 from .criteria import CRITERIA
 from .._core.model import Hammerstein
 
@@ -53,9 +53,10 @@ def as_input_output(v, y=None):
     return pair[0], pair[1], getattr(v, "dt", None)
 
 
-def as_recordings(recordings, name: str = "recordings"):
+def as_recordings(recordings, name: str = "recordings", *, model=None):
     """One ``(v, y)`` pair, a recording (:func:`recording_arrays`), or a list of those -> a tuple
-    of ``(v, y)`` float64 pairs, each finite, 1-D, of equal lengths within the pair."""
+    of ``(v, y)`` float64 pairs, each finite, 1-D, of equal lengths within the pair, on the
+    same device as each other and as ``model`` (when given)."""
     single = recording_arrays(recordings)
     if single is not None:
         items = [single]
@@ -89,6 +90,9 @@ def as_recordings(recordings, name: str = "recordings"):
         if v.shape[0] < 2:
             raise ValueError(f"`{tag}` must hold at least 2 samples, got {v.shape[0]}.")
         out.append((check_finite(v, f"{tag} v"), check_finite(y, f"{tag} y")))
+    named = {f"{name}[{k}] {side}": arr for k, pair in enumerate(out)
+             for side, arr in zip("vy", pair)}
+    one_device(**named, model=model)
     return tuple(out)
 
 

@@ -120,7 +120,7 @@ def separable_ls(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 2
     require_x64("separable_ls")
     ensure_compilation_cache()
     check_model(model)
-    recs = as_recordings(recordings)
+    recs = as_recordings(recordings, model=model)
     h_m = check_h_m(h_m)
     max_steps = positive_int(max_steps, "max_steps")
     q = flatten_params(model).shape[0] - 1
