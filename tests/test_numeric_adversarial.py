@@ -174,3 +174,26 @@ def test_overflow_is_refused_not_returned(name, fn, arg, match, transform):
         assert info.type is ValueError and "Traceback" not in str(info.value)
     # The same calls on finite data still run.
     assert np.all(np.isfinite(f(np.asarray(arg) * 1e-250)))
+
+
+# ----------------------------------------------------------------------------- scale
+
+_TR = 300
+_VR = 1.5 * D.h_m * np.sin(np.arange(_TR) / 7.0)
+_YR = np.asarray(hbjax.simulate(M, _VR, 0.1 * np.random.default_rng(3).standard_normal(_TR)))
+
+
+def test_crlb_is_scale_free_in_noise_std_and_refuses_beyond_float_range():
+    unit = hbjax.crlb(MN, (_VR, _YR), noise_std=1.0, h_m=D.h_m).covariance
+    tiny = hbjax.crlb(MN, (_VR, _YR), noise_std=1e-100, h_m=D.h_m).covariance
+    np.testing.assert_allclose(np.asarray(tiny) / 1e-200, unit, rtol=1e-9, atol=1e-300)
+    for sigma in (1e-160, 1e200):
+        with pytest.raises(ValueError, match=re.escape("`noise_std` must lie in [1e-150, 1e150]")):
+            hbjax.crlb(MN, (_VR, _YR), noise_std=sigma, h_m=D.h_m)
+
+
+def test_diagnose_sees_a_mismatch_in_data_of_huge_scale():
+    # The model explains y, not 1e80 y: the residual correlations must not overflow to 0.
+    v = D.h_m * np.sin(np.arange(600) / 20.0)
+    y = np.asarray(hbjax.simulate(M, v, 0.1 * np.random.default_rng(4).standard_normal(600)))
+    assert hbjax.diagnose(M, v, 1e80 * y, effects=["extra_delay"]).mismatch

@@ -41,11 +41,36 @@ def _guard_params(carrier, model):
     return carrier
 
 
-def _check_output(y, finite, model):
-    """Refuse a diverged free run eagerly instead of returning inf/NaN samples."""
-    if is_traced(finite) or bool(finite):
+# Why an output may overflow, for the message under jit (where the cause cannot be looked at).
+_WHY = {
+    "simulate": "the simulated output overflows to inf/NaN: the model diverges (an unstable "
+                "ARX block, assumption A3) or the input drives it beyond float range.",
+    "play": "the play operator's output overflows to inf/NaN: both branches P1(v), P2(v) "
+            "overflow at the largest |v|; rescale `v` or the coefficients.",
+    "predict": "the one-step prediction overflows to inf/NaN: `v`, `y` or the model's "
+               "coefficients are beyond float range; rescale the data.",
+}
+
+
+def _check_output(y, finite, model, what="simulate"):
+    """Refuse an inf/NaN output (the inputs were finite): eagerly with a ``ValueError``
+    naming the first bad sample and the cause, under jit/vmap with ``eqx.error_if``. The
+    flag ``finite`` is reduced inside the compiled run (fused with the scan), so the check
+    costs no extra pass over the record."""
+    if is_traced(finite) or is_traced(y):
+        if type(y).__name__ == "BatchTracer":  # (no public name for the vmap tracer)
+            # Under vmap any check that the batched output depends on costs a copy of the
+            # whole batch after the scan (measured 1.6-3x on benchmarks/simulate.py): the
+            # lanes' records are returned as computed, inf/NaN included.
+            return y
+        # One sample carries the check (a copy of a scalar through the error's branch,
+        # not of the record); the record's finiteness flag is fused with its computation.
+        return y.at[-1].set(eqx.error_if(y[-1], ~finite, _WHY[what]))
+    if bool(finite):
         return y
     first = int(np.flatnonzero(~np.isfinite(np.asarray(y)))[0])
+    if what != "simulate":
+        raise ValueError(f"{_WHY[what][:-1]} (from sample {first} on).")
     why = "the model diverges"
     if isinstance(model, Hammerstein) and not model.arx.is_stable():
         radius = float(np.max(np.abs(np.asarray(model.arx.poles()))))
@@ -64,8 +89,9 @@ def _scalar(x, name):
 
 
 @eqx.filter_jit
-def _play(backlash, v, u0):
-    return play_trajectory(backlash, v, u0)
+def _play(backlash, v, u0, valid=None):
+    u = play_trajectory(backlash, v, u0)
+    return u, _all_finite(u, valid)
 
 
 @eqx.filter_jit
@@ -74,11 +100,15 @@ def _simulate(model, v, noise, u0, y0=None, valid=None):
         y = model.simulate_trajectory(v, noise, u0)
     else:  # the past enters the scan's initial carry: no extra pass over the record
         y = model.simulate_trajectory(v, noise, u0, y0=y0)
-    # Fused with the scan: the eager divergence check costs no extra pass over y.
+    # Fused with the scan: the divergence check costs no extra pass over y.
+    return y, _all_finite(y, valid)
+
+
+def _all_finite(y, valid):
     finite = jnp.isfinite(y)
     if valid is not None:  # the padded tail of a bucketed record does not count
         finite = finite | (jnp.arange(y.shape[0]) >= valid)
-    return y, jnp.all(finite)
+    return jnp.all(finite)
 
 
 def _causal(fn, model, records, *rest, **kwargs):
@@ -89,8 +119,7 @@ def _causal(fn, model, records, *rest, **kwargs):
         return fn(model, *records, *rest, **kwargs)
     n = records[0].shape[0]
     size = bucket_length(n)
-    if fn is _simulate:
-        kwargs["valid"] = np.asarray(n)
+    kwargs["valid"] = np.asarray(n)
     # Padding and slicing on the host: an eager jnp op would itself compile per length.
     out = fn(model, *(pad(r, size) for r in records), *rest, **kwargs)
     return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[:n]) if a.ndim else a,
@@ -121,11 +150,11 @@ def _relaxed_model(model, smoothing):
 
 
 @eqx.filter_jit
-def _predict(model, v, y, u0, y0=None):
+def _predict(model, v, y, u0, y0=None, valid=None):
     y_hat = model.predict_trajectory(v, y, u0)
     if y0 is not None:
         y_hat = y_hat + injection(model, y0, u0, v.shape[0]).astype(y_hat.dtype)
-    return y_hat
+    return y_hat, _all_finite(y_hat, valid)
 
 
 def play(backlash: Backlash, v, *, u0=0.0, smoothing=None) -> Float[Array, " time"]:
@@ -151,7 +180,7 @@ def play(backlash: Backlash, v, *, u0=0.0, smoothing=None) -> Float[Array, " tim
     eps = _smoothing(smoothing)
     if eps is not None:
         backlash = relax(backlash, eps)
-    return _causal(_play, backlash, (v,), u0)
+    return _check_output(*_causal(_play, backlash, (v,), u0), backlash, "play")
 
 
 def simulate(model: AbstractModel, v, noise=None, *, u0=0.0, y0=None,
@@ -221,4 +250,4 @@ def predict(model: AbstractModel, v, y, *, u0=0.0, y0=None) -> Float[Array, " ti
     u0 = _guard_params(guard_finite(_scalar(u0, "u0"), v=v, y=y), model)
     if y0 is not None:
         y0 = output_lags(model, y0, dtype)
-    return _causal(_predict, model, (v, y), u0, y0)
+    return _check_output(*_causal(_predict, model, (v, y), u0, y0), model, "predict")

@@ -30,7 +30,11 @@ def correlation(x: np.ndarray, z: np.ndarray, lags: int) -> np.ndarray:
     """``r(k) = sum_t x(t) z(t-k) / (||x|| ||z||)`` for ``k = 0..lags``."""
     x = x - x.mean()
     z = z - z.mean()
-    den = np.sqrt(np.sum(x * x) * np.sum(z * z)) or 1.0
+    # Scale-free: each record divided by its largest magnitude first, so that the sums of
+    # squares (and their product) neither overflow nor underflow whatever the data's units.
+    x = x / (np.max(np.abs(x), initial=0.0) or 1.0)
+    z = z / (np.max(np.abs(z), initial=0.0) or 1.0)
+    den = np.sqrt(np.sum(x * x)) * np.sqrt(np.sum(z * z)) or 1.0
     return np.array([np.sum(x[k:] * z[:len(z) - k]) / den for k in range(lags + 1)])
 
 
@@ -125,6 +129,10 @@ def windows(mask: np.ndarray, min_gap: int = 10, min_len: int = 3, offset: int =
 def diebold_mariano(ref: np.ndarray, new: np.ndarray) -> float:
     """z statistic that ``new`` has smaller squared error than ``ref`` (paired, with a
     Newey-West long-run variance: residuals of a dynamic model are autocorrelated)."""
+    # The z statistic is scale-free: residuals in units of their largest magnitude, so that
+    # squares and products of squares stay in float range for any data scale.
+    scale = max(np.max(np.abs(ref), initial=0.0), np.max(np.abs(new), initial=0.0)) or 1.0
+    ref, new = ref / scale, new / scale
     d = ref**2 - new**2
     n = len(d)
     lag = max(1, math.ceil(4 * (n / 100) ** (2 / 9)))  # Newey-West rule of thumb

@@ -13,7 +13,7 @@ from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .criteria import PAPER, STATIC_GAIN, Parametrisation, outputs
 from .._core.model import Hammerstein
-from .._core.params import flatten_params
+from .._core.params import flatten_params, gauge_factor, model_from_theta
 from .recordings import as_recordings, check_criterion, check_h_m, check_model
 
 
@@ -70,25 +70,21 @@ def crlb_traceable(model: Hammerstein, recordings, *, noise_std, criterion="pred
     theta = flatten_params(model)
 
     def outs(th):
-        return jnp.concatenate(outputs(_rebuild(model, th), recordings, criterion))
+        return jnp.concatenate(outputs(model_from_theta(th, model.arx.na, model.arx.nb), recordings, criterion))
 
     jac = jax.jacfwd(outs)(theta)
-    fisher = jac.T @ jac / jnp.asarray(noise_std) ** 2
+    # The information per unit noise variance: sigma enters only as a final scale, so a
+    # tiny or huge noise_std cannot overflow the matrix that is inverted.
+    info = jac.T @ jac
+    variance = jnp.asarray(noise_std) ** 2
+    fisher = info / variance
     g = par.constraint_row()
     # Orthonormal basis of the null space of g^T: the directions the constraint allows.
     _, _, vt = jnp.linalg.svd(g[None, :])
     basis = vt[1:].T
-    reduced = basis.T @ fisher @ basis
-    cov = basis @ jnp.linalg.pinv(reduced, hermitian=True) @ basis.T
+    reduced = basis.T @ info @ basis
+    cov = variance * (basis @ jnp.linalg.pinv(reduced, hermitian=True) @ basis.T)
     return CRLBResult(fisher, cov, g, gauge)
-
-
-def _rebuild(like: Hammerstein, theta):
-    na, nb, m = like.arx.na, like.arx.nb, like.backlash.m
-    bl = eqx.tree_at(lambda b: (b.c1, b.c2), like.backlash,
-                     (theta[na + nb:na + nb + m], theta[na + nb + m:]))
-    arx = eqx.tree_at(lambda a: (a.a, a.b), like.arx, (theta[:na], theta[na:na + nb]))
-    return Hammerstein(bl, arx)
 
 
 _crlb_jit = eqx.filter_jit(crlb_traceable)
@@ -128,7 +124,13 @@ def crlb(model: Hammerstein, recordings, *, noise_std, criterion: str = "predict
     recs = as_recordings(recordings, model=model)
     h_m = check_h_m(h_m)
     if not is_traced(noise_std):
-        positive_float(noise_std, "noise_std")
+        sigma = positive_float(noise_std, "noise_std")
+        if not 1e-150 <= sigma <= 1e150:
+            raise ValueError(
+                f"`noise_std` must lie in [1e-150, 1e150] (its square, the noise variance, "
+                f"must be a normal float64), got {noise_std!r}; express the output in other "
+                "units."
+            )
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)) and not is_traced(h_m):
         _check_normalised(model, h_m)
     res = _crlb_jit(model, recs, noise_std=noise_std, criterion=criterion, h_m=h_m)
@@ -156,10 +158,8 @@ def _check_normalised(model, h_m):
     if h_m is None:
         value, what, fix = float(np.sum(np.asarray(model.arx.b))), "B(1) = sum(b)", "hbjax.normalise_static_gain(model)"
     else:
-        bl = model.backlash
-        # NumPy, not jnp: inside jit even constant jnp operations are traced.
-        poly = np.polynomial.polynomial.polyval
-        value = float(poly(-h_m, np.asarray(bl.c2)) - poly(h_m, np.asarray(bl.c1)))
+        with jax.ensure_compile_time_eval():  # concrete even inside an outer jit
+            value = float(gauge_factor(model.backlash.c1, model.backlash.c2, h_m))
         what, fix = "P2(-h_m) - P1(h_m)", "hbjax.normalise(model, h_m)"
     if not abs(value - 1.0) <= 1e-8:
         raise ValueError(
