@@ -4,7 +4,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .arx import ARX
-from .backlash import Backlash
+from .backlash import Backlash, polyval_ascending
 from .._misc import as_float_array, check_finite, float_dtype, is_traced
 from .model import Hammerstein
 
@@ -34,9 +34,29 @@ def unflatten_params(like: Hammerstein, theta) -> Hammerstein:
         )
     if not is_traced(theta):  # traced: left to the caller (optimisers probe freely)
         check_finite(theta, "theta")
-    a, b = theta[:na], theta[na:na + nb]
-    c1, c2 = theta[na + nb:na + nb + m], theta[na + nb + m:]
+    return model_from_theta(theta, na, nb)
+
+
+def split_theta(theta, na: int, nb: int):
+    """``(a, b, c1, c2)`` of a parameter vector in :func:`flatten_params` order (the one
+    place that slices it; traceable, unchecked)."""
+    m = (theta.shape[0] - na - nb) // 2
+    return theta[:na], theta[na:na + nb], theta[na + nb:na + nb + m], theta[na + nb + m:]
+
+
+def model_from_theta(theta, na: int, nb: int) -> Hammerstein:
+    """The :class:`hbjax.Hammerstein` of a parameter vector in :func:`flatten_params`
+    order (traceable; :func:`unflatten_params` is the checked public form)."""
+    a, b, c1, c2 = split_theta(theta, na, nb)
     return Hammerstein(Backlash(c1, c2), ARX(a, b))
+
+
+def gauge_factor(c1, c2, h_m):
+    """``mu = P2(-h_m) - P1(h_m)``, the factor the paper's normalisation divides the
+    branches by and multiplies ``B`` with (section 4.1, eqs. (11)-(13)); ``M2* - M1* = 1``
+    afterwards. Traceable; evaluated eagerly under ``jax.ensure_compile_time_eval`` by the
+    argument checks."""
+    return polyval_ascending(c2, -h_m) - polyval_ascending(c1, h_m)
 
 
 def param_names(model: Hammerstein) -> list[str]:
