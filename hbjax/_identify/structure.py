@@ -8,10 +8,9 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
-
 from .._core import display
 from .._core.model import Hammerstein
+from .._core.progress import check_progress, progress_bar
 from .._core.simulate import predict, simulate
 from .._misc import positive_int
 from .compare import compare
@@ -113,9 +112,22 @@ def _validation_fit(model, validation):
         return -np.inf
 
 
+def _score(recs, val, a, b, c, key, starts, criterion, fit_kw):
+    """One row of the table: fit the orders ``(a, b, c)`` and score them."""
+    res = fit(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
+              throw=False, **fit_kw)
+    ok = res.message == "success"
+    loss, n = _loss(res.model, recs, criterion) if ok else (np.inf, 1)
+    k = a + b + 2 * c - 1
+    log_loss = math.log(loss) if 0 < loss < np.inf else (np.inf if loss else -np.inf)
+    vfit = _validation_fit(res.model, val) if (ok and val is not None) else np.nan
+    return ((a, b, c), k, loss, n * log_loss + k * math.log(n), n * log_loss + 2 * k, vfit,
+            ok, res.model, res.message)
+
+
 def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction",
                      validation=None, rank_by=None, starts: int = 32,
-                     progress: bool = True) -> StructureSelection:
+                     progress: bool | dict = True) -> StructureSelection:
     """Select the orders ``(na, nb, m)`` of an HB-Hammerstein model from recordings.
 
     Every combination of the candidate orders is identified by :func:`hbjax.fit` (same
@@ -137,12 +149,14 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
       fit first; needs `validation`). BIC is consistent (it picks the true orders as the
       data grow); the validation fit rarely separates the true orders from larger ones.
     - `starts`: starts per :func:`hbjax.fit`.
-    - `progress`: show a progress bar over the structures (``False`` silences it).
+    - `progress`: a progress bar over the structures once the work takes more than 2 s
+      (``False`` silences it; a dict passes tqdm options, see ``docs/performance.md``).
 
     **Returns:** a :class:`StructureSelection` table, best first, with ``.best`` the
     selected ``(na, nb, m)``.
     """
     check_criterion(criterion)
+    check_progress(progress)
     na_list = _orders(na, "na", 0)
     nb_list = _orders(nb, "nb", 1)
     m_list = _orders(m, "m", 1)
@@ -156,16 +170,10 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     fit_kw = {"progress": False} if "progress" in inspect.signature(fit).parameters else {}
     grid = list(itertools.product(na_list, nb_list, m_list))
     rows = []
-    for a, b, c in tqdm(grid, desc="structures", disable=not progress, leave=False):
-        res = fit(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
-                  throw=False, **fit_kw)
-        ok = res.message == "success"
-        loss, n = _loss(res.model, recs, criterion) if ok else (np.inf, 1)
-        k = a + b + 2 * c - 1
-        log_loss = math.log(loss) if 0 < loss < np.inf else (np.inf if loss else -np.inf)
-        vfit = _validation_fit(res.model, val) if (ok and val is not None) else np.nan
-        rows.append(((a, b, c), k, loss, n * log_loss + k * math.log(n),
-                     n * log_loss + 2 * k, vfit, ok, res.model, res.message))
+    with progress_bar(progress, total=len(grid), desc="select_structure") as bar:
+        for a, b, c in grid:
+            rows.append(_score(recs, val, a, b, c, key, starts, criterion, fit_kw))
+            bar.update(1)
     column = {"bic": 3, "aic": 4}
     if rank_by == "validation":
         order = sorted(range(len(rows)), key=lambda i: (not rows[i][6], -rows[i][5], rows[i][3]))
