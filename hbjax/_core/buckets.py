@@ -8,6 +8,10 @@ the program compiled for that bucket, and returns the first ``N`` samples. Resul
 unaffected (the same arithmetic on the same samples); only the padded tail is extra work,
 at most 25% (12.5% on average) above :data:`MIN_BUCKET` samples.
 
+The estimators (:func:`hbjax.refine`) pad their records the same way and carry the
+recorded length as a runtime value (:func:`padded_records`): their sums over samples are
+masked, so padded samples contribute nothing.
+
 Buckets are ``k * 2^e`` with ``k in {4, 5, 6, 7}``: four per octave. Calls under
 ``jax.jit`` / ``vmap`` / ``grad`` (a traced record, model or state) are never padded: the
 caller's own program fixes the shape.
@@ -40,6 +44,26 @@ def should_bucket(*trees) -> bool:
 
 def pad(x, length: int) -> jax.Array:
     """Concrete ``x`` with zeros appended up to ``length`` samples, padded on the host and
-    placed with ``device_put`` (an eager ``jnp`` op would compile once per length)."""
+    placed with ``device_put`` (an eager ``jnp`` op would compile once per length) on the
+    device ``x`` was committed to, if any."""
+    device = None
+    if isinstance(x, jax.Array) and x.committed:
+        device = next(iter(x.devices()))
     x = np.asarray(x)
-    return jax.device_put(np.pad(x, (0, length - x.shape[0])))
+    return jax.device_put(np.pad(x, (0, length - x.shape[0])), device)
+
+
+def padded_records(recordings) -> tuple:
+    """Concrete ``(v, y)`` records -> padded records ``(v, y, n)``: both signals zero-padded
+    to the bucket of their length ``n``, and ``n`` as an integer array (a runtime value, so
+    one compiled estimator serves every length of a bucket). The estimators mask every
+    sum, extremum and count over samples with ``n``
+    (:func:`hbjax._identify.criteria.unpack`), which makes the padding invisible in their
+    results; the recursions are causal, so the recorded samples are computed as without it.
+    """
+    out = []
+    for v, y in recordings:
+        n = int(v.shape[0])
+        size = bucket_length(n)
+        out.append((pad(v, size), pad(y, size), jax.device_put(np.asarray(n))))
+    return tuple(out)

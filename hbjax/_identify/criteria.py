@@ -21,6 +21,37 @@ SIMULATION = "simulation"
 CRITERIA = (PREDICTION, SIMULATION)
 
 
+# --------------------------------------------------------------------------- padded records
+def unpack(record):
+    """``(v, y, mask)`` of a record given as ``(v, y)`` (``mask`` is ``None``) or as a
+    *padded* record ``(v, y, n)``: ``v`` and ``y`` zero-padded to a bucket length
+    (:mod:`hbjax._core.buckets`) and ``n`` (an integer array, a runtime value) the number
+    of recorded samples; ``mask`` marks them. The recursions are causal, so the first
+    ``n`` samples of every signal are those of the unpadded record; every sum, mean,
+    extremum and count over samples is taken over the mask, so that a padded record gives
+    the unpadded record's results while one compiled program serves all lengths of a
+    bucket."""
+    if len(record) == 3:
+        v, y, n = record
+        return v, y, jnp.arange(v.shape[0]) < n
+    v, y = record
+    return v, y, None
+
+
+def where_valid(mask, x, fill):
+    """``x`` at the recorded samples, ``fill`` at the padded ones (along the first axis);
+    ``x`` itself when ``mask`` is ``None``."""
+    if mask is None:
+        return x
+    return jnp.where(mask.reshape(mask.shape + (1,) * (jnp.ndim(x) - 1)), x, fill)
+
+
+def sample_count(recordings):
+    """Recorded samples over all records: an ``int`` for plain records, an integer array
+    (a runtime value) when some are padded."""
+    return sum((rec[2] if len(rec) == 3 else rec[0].shape[0]) for rec in recordings)
+
+
 # --------------------------------------------------------------------------- parametrisation
 PAPER = "paper"  # P2(-h_m) - P1(h_m) = 1 (paper section 4.1)
 STATIC_GAIN = "static_gain"  # B(1) = 1
@@ -346,25 +377,39 @@ def _record_residual_jvp(na, nb, criterion, primals, tangents):
     return r, dr
 
 
+def _branch_gap(model: Hammerstein, recordings):
+    """``P2 - P1`` at every recorded input (records concatenated) and the mask of the
+    recorded samples (``None`` when no record is padded)."""
+    gaps, masks = [], []
+    for rec in recordings:
+        v, _, mask = unpack(rec)
+        gaps.append(model.backlash.p2(v) - model.backlash.p1(v))
+        masks.append(jnp.ones(v.shape[0], bool) if mask is None else mask)
+    padded = any(len(rec) == 3 for rec in recordings)
+    return jnp.concatenate(gaps), (jnp.concatenate(masks) if padded else None)
+
+
 def lower_is_p1(model: Hammerstein, recordings):
     """Which branch is the lower edge ``L`` of the band: ``P1`` if it lies below ``P2`` on
     average over the recorded inputs (a boolean array)."""
-    d = jnp.concatenate([model.backlash.p2(v) - model.backlash.p1(v) for v, _ in recordings])
-    return jnp.mean(d) >= 0
+    d, mask = _branch_gap(model, recordings)
+    if mask is None:
+        return jnp.mean(d) >= 0
+    return jnp.sum(jnp.where(mask, d, 0.0)) >= 0  # the sign of the mean
 
 
 def band_violated(model: Hammerstein, recordings, lower_is_p1):
     """Whether the labelled band has ``L > H`` at some recorded input (the branches cross
     there, so the model is not a hysteresis band over the data)."""
-    d = jnp.concatenate([model.backlash.p2(v) - model.backlash.p1(v) for v, _ in recordings])
-    return jnp.any(jnp.where(lower_is_p1, d, -d) < 0)
+    d, mask = _branch_gap(model, recordings)
+    return jnp.any(where_valid(mask, jnp.where(lower_is_p1, d, -d) < 0, False))
 
 
 def branches_meet(model: Hammerstein, recordings):
     """Whether ``P2 - P1`` changes sign or vanishes over the recorded inputs (the band
     closes inside the data: a closing hysteresis loop)."""
-    d = jnp.concatenate([model.backlash.p2(v) - model.backlash.p1(v) for v, _ in recordings])
-    return ~(jnp.all(d > 0) | jnp.all(d < 0))
+    d, mask = _branch_gap(model, recordings)
+    return ~(jnp.all(where_valid(mask, d > 0, True)) | jnp.all(where_valid(mask, d < 0, True)))
 
 
 def record_outputs(model: Hammerstein, v, y, criterion: str, lower=None):
@@ -379,14 +424,19 @@ def record_outputs(model: Hammerstein, v, y, criterion: str, lower=None):
 
 
 def residuals(z, par: Parametrisation, recordings, criterion: str):
-    """Residuals ``y - y_hat`` or ``y - y_sim`` of all records (a tuple, one per record).
+    """Residuals ``y - y_hat`` or ``y - y_sim`` of all records (a tuple, one per record;
+    zero at the padded samples of a padded record, see :func:`unpack`).
 
     The branches are evaluated in ``x = v / scale`` with the scaled coefficients, which is
     the same operator as the unscaled branches on ``v``.
     """
     theta = par.theta_scaled(z)
-    return tuple(record_residual(theta, v / par.scale, y, par.band, par.na, par.nb,
-                                 criterion) for v, y in recordings)
+    out = []
+    for rec in recordings:
+        v, y, mask = unpack(rec)
+        r = record_residual(theta, v / par.scale, y, par.band, par.na, par.nb, criterion)
+        out.append(where_valid(mask, r, 0.0))  # padded samples: zero residual, zero row
+    return tuple(out)
 
 
 def outputs(model: Hammerstein, recordings, criterion: str):
@@ -398,5 +448,6 @@ def outputs(model: Hammerstein, recordings, criterion: str):
 
 def data_scale(recordings):
     """Largest ``|v|`` over all records (1 if all inputs are 0)."""
-    s = jnp.max(jnp.stack([jnp.max(jnp.abs(v)) for v, _ in recordings]))
+    s = jnp.max(jnp.stack([jnp.max(where_valid(mask, jnp.abs(v), 0.0))
+                           for v, _, mask in map(unpack, recordings)]))
     return jnp.where(s > 0, s, 1.0)

@@ -12,7 +12,7 @@ from jaxtyping import Array, Bool, Float
 
 from .._core.backlash import polyval_ascending
 from .._core.model import Hammerstein
-from .criteria import CORE_BAND, SIMULATION, _internal, record_residual
+from .criteria import CORE_BAND, SIMULATION, _internal, record_residual, unpack, where_valid
 
 # A result whose free-run fit on its own estimation data (all records pooled) is below this
 # is not a success (RESULTS.poor_fit): the model simulates worse than each record's mean.
@@ -40,12 +40,13 @@ def core_consistent(theta_scaled, band, recordings, scale, na: int, nb: int):
     m = (theta_scaled.shape[0] - na - nb) // 2
     c1, c2 = theta_scaled[na + nb:na + nb + m], theta_scaled[na + nb + m:]
     lower = jnp.asarray(band).astype(jnp.int32) == 1
-    for v, _ in recordings:
+    for v, _, mask in map(unpack, recordings):
         x = v / scale
         u_fit = _internal(theta_scaled, x, na, nb, band)[0]
         u_core = _internal(theta_scaled, x, na, nb, CORE_BAND)[0]
-        tol = 1e-10 * (jnp.max(jnp.abs(u_core)) + jnp.finfo(u_core.dtype).tiny)
-        differ = jnp.abs(u_fit - u_core) > tol
+        tol = 1e-10 * (jnp.max(where_valid(mask, jnp.abs(u_core), 0.0))
+                       + jnp.finfo(u_core.dtype).tiny)
+        differ = where_valid(mask, jnp.abs(u_fit - u_core) > tol, False)
         d = polyval_ascending(c2, x) - polyval_ascending(c1, x)
         crossing = jnp.where(differ, jnp.where(lower, -d, d), -jnp.inf)
         i = jnp.argmax(crossing)
@@ -97,16 +98,20 @@ def simulation_fit(model: Hammerstein, recordings):
     fits, num, den = [], 0.0, 0.0
     lo = jnp.full(2, jnp.inf)
     hi = jnp.full(2, -jnp.inf)
-    for v, y in recordings:
+    for v, y, mask in map(unpack, recordings):
         r = record_residual(theta, v, y, CORE_BAND, na, nb, SIMULATION)
-        e2 = jnp.sum(r**2)
+        e2 = jnp.sum(where_valid(mask, r**2, 0.0))  # an overflowing padded tail is no error
         e2 = jnp.where(jnp.isfinite(e2), e2, jnp.inf)
-        d2 = jnp.sum((y - jnp.mean(y)) ** 2)
+        if mask is None:
+            d2 = jnp.sum((y - jnp.mean(y)) ** 2)
+        else:
+            mean = jnp.sum(where_valid(mask, y, 0.0)) / jnp.sum(mask)
+            d2 = jnp.sum(where_valid(mask, (y - mean) ** 2, 0.0))
         fits.append(100.0 * (1.0 - jnp.sqrt(e2) / jnp.sqrt(jnp.maximum(d2, 1e-300))))
         num, den = num + e2, den + d2
         _, g, _, idx = _internal(theta, v, na, nb, CORE_BAND)
         for k, col in enumerate((0, m)):
-            on = g[:, col] == 1.0
+            on = where_valid(mask, g[:, col] == 1.0, False)
             vs = v[idx]
             lo = lo.at[k].min(jnp.min(jnp.where(on, vs, jnp.inf)))
             hi = hi.at[k].max(jnp.max(jnp.where(on, vs, -jnp.inf)))

@@ -18,11 +18,12 @@ from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import is_traced, positive_float, positive_int
+from .._core.buckets import padded_records, should_bucket
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .criteria import (
     PAPER, PREDICTION, STATIC_GAIN, Parametrisation, branches_meet, data_scale,
-    lower_is_p1, residuals,
+    lower_is_p1, residuals, sample_count, unpack,
 )
 from .._core.model import Hammerstein
 from .._results import RESULTS, raise_if_failed
@@ -189,7 +190,7 @@ def summarise(par, z, ssr, ssr0, jtj, n, result, steps, ok):
     parameters (the constraint direction has zero variance).
     """
     q = z.shape[0]
-    noise_var = ssr / max(n - q, 1)
+    noise_var = ssr / jnp.maximum(n - q, 1)  # n: an int, or traced for padded records
     cov_z = noise_var * jnp.linalg.pinv(jtj, hermitian=True)
     d = par.jacobian()
     cov = d @ cov_z @ d.T
@@ -365,7 +366,10 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     decides the output), the core operator ``L = min, H = max`` from there, so that the
     returned model's fit is always the fit of :func:`hbjax.simulate`'s model.
 
-    ``recordings`` must already be a tuple of ``(v, y)`` float64 array pairs. Works under
+    ``recordings`` must already be a tuple of ``(v, y)`` float64 array pairs, or of padded
+    records ``(v, y, n)`` (zero-padded to a bucket length, ``n`` recorded samples as an
+    integer array; :func:`hbjax._identify.criteria.unpack`), which give the unpadded
+    records' results from one program per bucket. Works under
     ``jax.jit`` and ``jax.vmap`` (e.g. over noise realisations with the inputs shared);
     see :func:`refine_batch`.
     """
@@ -380,7 +384,7 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     par, z, result, steps, ssr, jtj = _touch_where_decisive(par, z, result, steps, ssr, jtj,
                                                             recordings, criterion,
                                                             statistics, options)
-    n = total_samples(recordings)
+    n = sample_count(recordings)
     fitted, result, stats, cov, noise_std = summarise(par, z, ssr, ssr0, jtj, n, result,
                                                       steps, ok)
     return finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jtj,
@@ -414,8 +418,15 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
     poor = ~(pooled >= min_sim_fit)
     result = RESULTS.where(good & poor & closing, RESULTS.closing_loop, result)
     result = RESULTS.where(good & poor & ~closing, RESULTS.poor_fit, result)
-    v_all = jnp.concatenate([v for v, _ in recordings])
-    data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
+    v_all = jnp.concatenate([v for v, _, _ in map(unpack, recordings)])
+    valid = [mask for _, _, mask in map(unpack, recordings)]
+    if any(mask is not None for mask in valid):
+        valid = jnp.concatenate([jnp.ones(v.shape[0], bool) if mask is None else mask
+                                 for (v, _, _), mask in zip(map(unpack, recordings), valid)])
+        data_range = jnp.stack([jnp.min(jnp.where(valid, v_all, jnp.inf)),
+                                jnp.max(jnp.where(valid, v_all, -jnp.inf))])
+    else:
+        data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
     return RefineResult(fitted, result, stats, cov, noise_std, closing, fits, pooled, stable,
                         ident, active, data_range, jnp.asarray(par.core), criterion,
                         par.gauge)
@@ -569,6 +580,9 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
         _check_gauge(model, h_m)
     min_sim_fit = check_floor(min_sim_fit)
+    if should_bucket(model, recs, h_m, min_sim_fit):
+        # One program per bucket of record lengths; the padding is masked out of every sum.
+        recs = padded_records(recs)
     res = _refine_jit(model, recs, criterion, h_m, max_steps, positive_float(rtol, "rtol"),
                       positive_float(atol, "atol"), min_sim_fit)
     if throw and is_traced(res.result._value):

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-from .criteria import Parametrisation, _internal, lagged_rows
+from .criteria import Parametrisation, _internal, lagged_rows, unpack, where_valid
 
 # Rounds after which sources that still move hand over to the full solve. From a start far
 # from the optimum under an input whose switching instants depend on the band, each round
@@ -56,16 +56,18 @@ def statistics(z, par: Parametrisation, recordings):
     w = bilinear_weights(z, par)
     na, nb, m = par.na, par.nb, par.m
     gram, codes, ssr = 0.0, [], 0.0
-    for v, y in recordings:
+    for v, y, mask in map(unpack, recordings):
         _, g, _, idx = _internal(theta, v / par.scale, na, nb, par.band)
         cols = ([y[:, None]] + [lagged_rows(y, i + 1)[:, None] for i in range(na)]
                 + [lagged_rows(g, j + 1) for j in range(nb)])
-        design = jnp.concatenate(cols, axis=1)
+        # A padded record's rows beyond its samples are zero: they add nothing to the Gram.
+        design = where_valid(mask, jnp.concatenate(cols, axis=1), 0.0)
         gram = gram + jnp.matmul(design.T, design, precision=jax.lax.Precision.HIGHEST)
         r = jnp.matmul(design, w, precision=jax.lax.Precision.HIGHEST)
         ssr = ssr + jnp.sum(r**2)
         # Columns 0 and m of G are the constant powers of P1 and P2: 1 on the active branch.
-        codes.append(4 * idx + 2 * g[:, 0].astype(jnp.int32) + g[:, m].astype(jnp.int32))
+        code = 4 * idx + 2 * g[:, 0].astype(jnp.int32) + g[:, m].astype(jnp.int32)
+        codes.append(where_valid(mask, code, 0))
     return gram, jnp.concatenate(codes), ssr
 
 
