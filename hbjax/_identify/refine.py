@@ -537,7 +537,9 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     operator from there. The returned model is therefore always exactly
     :func:`hbjax.simulate`'s model on the data; ``.extrapolated`` lists the branch ranges
     that are extrapolations, ``.branches_cross`` whether the branches meet at a recorded
-    input. Orders are static.
+    input. Orders are static; record lengths are not: an eager call pads each record to
+    its length's bucket and masks the padding out (``docs/performance.md``), so a record of
+    a new length costs no new compilation and gives the unpadded record's results.
 
     The result is not ``successful`` (and ``throw=True`` raises) when the solver failed,
     when ``A`` is unstable (``RESULTS.unstable``, assumption A3), or when the free-run fit
