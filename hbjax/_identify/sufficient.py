@@ -124,9 +124,10 @@ def solve_by_statistics(par: Parametrisation, z0, recordings, *, max_steps, rtol
         *_, rounds, steps, result, settled = state
         return ~settled & (rounds < MAX_ROUNDS) & (result == ok) & (steps < max_steps)
 
+    # The first round always runs (``again`` holds for this state while max_steps >= 1):
+    # the round is traced once, inside the loop, not a second time before it.
     init = (z0, gram0, ssr0, codes0, jnp.asarray(0), jnp.asarray(0), ok, jnp.asarray(False))
-    z, gram, ssr, _, _, steps, result, settled = jax.lax.while_loop(again, round_,
-                                                                    round_(init))
+    z, gram, ssr, _, _, steps, result, settled = jax.lax.while_loop(again, round_, init)
     in_budget = steps < max_steps
     result = optx.RESULTS.where(settled | in_budget | (result != ok),
                                 result, optx.RESULTS.nonlinear_max_steps_reached)
