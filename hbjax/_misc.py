@@ -150,3 +150,54 @@ def positive_float(x, name: str, *, allow_zero: bool = False) -> float:
         bound = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"`{name}` must be a finite number {bound}, got {x!r}.")
     return val
+
+
+def lagged(x, lag: int):
+    """``x(t - lag)`` along the first (time) axis of an array of any rank, with
+    ``x(t) = 0`` for ``t < 0`` (the zero initial conditions): the shift ``q^-lag`` of the
+    ARX block, eq. (2)."""
+    if lag == 0:
+        return x
+    if lag >= x.shape[0]:  # a record shorter than the lag sees only initial conditions
+        return jnp.zeros_like(x)
+    return jnp.concatenate([jnp.zeros((lag,) + x.shape[1:], x.dtype), x[:-lag]])
+
+
+def jsonable(x):
+    """``x`` with arrays as nested lists, NumPy/JAX scalars as Python numbers, NaN/inf as
+    ``None`` (JSON has no non-finite numbers) and dict keys as strings, recursively."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (np.ndarray, jax.Array)):
+        return jsonable(np.asarray(x).tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        x = float(x)
+        return x if np.isfinite(x) else None
+    return x
+
+
+def check_key(key, name: str = "key", *, optional: bool = False):
+    """A single JAX PRNG key, returned unchanged: a typed key (``jax.random.key(0)``) or a
+    legacy ``uint32`` key of shape ``(2,)`` (``jax.random.PRNGKey(0)``); also ``None``
+    with ``optional``. Anything else (an integer seed, a NumPy generator, a batch of
+    keys, a float array) raises a ``TypeError`` naming what was given."""
+    if key is None and optional:
+        return None
+    if isinstance(key, jax.Array) and (
+            (jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ())
+            or (key.dtype == jnp.uint32 and key.shape == (2,))):
+        return key
+    if hasattr(key, "dtype") and hasattr(key, "shape"):
+        what = f"{type(key).__name__} of dtype {key.dtype} and shape {tuple(key.shape)}"
+    else:
+        what = f"{type(key).__name__} {key!r}"
+    raise TypeError(
+        f"`{name}` must be a single JAX PRNG key (jax.random.key(0) or "
+        f"jax.random.PRNGKey(0)){' or None' if optional else ''}, got {what}."
+    )

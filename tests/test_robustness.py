@@ -399,7 +399,7 @@ bad(GAIN, "refine", ValueError, "the initial `model` has B\\(1\\) = sum\\(b\\) =
 bad(GAIN, "normalise_static_gain", ValueError, "`model` has B\\(1\\) = sum\\(b\\) = 0", lambda t: hbjax.normalise_static_gain(ZERO_GAIN))
 bad(MU, "refine", ValueError, "mu = P2\\(-h_m\\) - P1\\(h_m\\) is 0.0 for the initial `model`", lambda t: hbjax.refine(MU_ZERO_AT_1, (V_R, Y_R), h_m=1.0))
 bad(MU, "crlb", ValueError, "`model` is not normalised: P2\\(-h_m\\) - P1\\(h_m\\) = -5.52, expected 1", lambda t: hbjax.crlb(M, REC, noise_std=0.1, h_m=H_M))
-bad(KEY, "fit", TypeError, "`key` must be a (single )?JAX PRNG key .*got 0", lambda t: fit(key=0))
+bad(KEY, "fit", TypeError, "`key` must be a single JAX PRNG key .*got int 0", lambda t: fit(key=0))
 bad(KEY, "fit", TypeError, "`key` must be a (single )?JAX PRNG key .*float64", lambda t: fit(key=jnp.zeros(2)))
 bad(KEY, "fit", TypeError, "`key` must be a (single )?JAX PRNG key", lambda t: fit(key=jax.random.split(KEY0, 2)))
 bad(IDENT, "crlb", ValueError, "[Ff]isher information is singular", lambda t: hbjax.crlb(MN, (V_R[:3], Y_R[:3]), noise_std=0.1, h_m=H_M))
@@ -427,7 +427,7 @@ bad(ORDER, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), 
 bad(ORDER, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got True", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=True))
 bad(SHORT, "diagnose", ValueError, "record too short for `holdout`=0.3: 100 samples give 70 to fit", lambda t: hbjax.diagnose(M, V_D[:100], Y_D[:100]))
 bad(OPTION, "diagnose", ValueError, "unknown effect name\\(s\\) in `effects`: \\['friction'\\]", lambda t: hbjax.diagnose(M, V_D, Y_D, effects=["friction"]))
-bad(KEY, "diagnose", TypeError, "`key` must be a jax PRNG key or None", lambda t: hbjax.diagnose(M, V_D, Y_D, key=0))
+bad(KEY, "diagnose", TypeError, "`key` must be a single JAX PRNG key .* or None, got int 0", lambda t: hbjax.diagnose(M, V_D, Y_D, key=0))
 bad(UNSTABLE_A, "diagnose", ValueError, "unstable", lambda t: hbjax.diagnose(UNSTABLE, V_D, Y_D, effects=["parameter_mismatch"]))
 
 bad(OPTION, "concealed_recording", ValueError, "unknown `effect` 'friction'", lambda t: hbjax.concealed_recording("friction"))
@@ -437,7 +437,7 @@ bad(ORDER, "concealed_recording", ValueError, "`n` must be an integer >= 1, got 
 bad(ORDER, "concealed_recording", TypeError, "`n` must be an integer, got 2.5", lambda t: hbjax.concealed_recording(None, n=2.5))
 bad(ORDER, "concealed_recording", ValueError, "`system` must be an index 0..2, got True", lambda t: hbjax.concealed_recording(None, system=True))
 bad(NONFINITE, "concealed_recording", ValueError, "`noise` must be a finite number >= 0", lambda t: hbjax.concealed_recording(None, noise=-1.0))
-bad(KEY, "concealed_recording", TypeError, "`key` must be a (jax|JAX) PRNG key", lambda t: hbjax.concealed_recording(None, key=0))
+bad(KEY, "concealed_recording", TypeError, "`key` must be a single JAX PRNG key .* or None, got int", lambda t: hbjax.concealed_recording(None, key=0))
 
 # --- bundled data sets
 bad(OPTION, "datasets.brfd", ValueError, "unknown BRFD record `name` 'nope'; valid names: .*1Hz30lbtension1amplitude", lambda t: hbjax.datasets.brfd("nope"))

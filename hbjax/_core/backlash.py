@@ -39,6 +39,40 @@ def power_columns(v: Float[Array, " time"], m: int) -> Float[Array, "time m"]:
     return jnp.stack(cols, axis=-1)
 
 
+def play_sources(low: Float[Array, " time"], high: Float[Array, " time"], force=None, *,
+                 u0=0.0):
+    """The play operator ``u(t) = min(max(u(t-1), low(t)), high(t))`` (``u(-1) = u0``)
+    and, for every ``t``, the instant whose band edge ``u(t)`` equals: ``src(t) = s`` if
+    ``u(t) = low(s)``, ``T + s`` if ``u(t) = high(s)``, ``-1`` while still ``u(-1)``.
+
+    The one scan of the play operator under the identification criteria and the
+    diagnosis kernel: ``u(t)`` is a branch value at a source instant, so derivatives are
+    gathers of the branches there instead of tangents through the loop.
+
+    ``force`` (optional, int per sample) overrides the clamp where the band is inverted
+    (``low > high``): 0 takes ``low``, 1 takes ``high``, 2 keeps ``u(t-1)``, -1 clamps.
+    The scan body is a few selects; all the arithmetic is vectorised outside it.
+    """
+    T = low.shape[0]
+
+    def step(carry, inputs):
+        u_prev, src_prev = carry
+        lo, hi, t, f = inputs
+        raised = jnp.maximum(u_prev, lo)
+        src = jnp.where(raised > hi, T + t, jnp.where(u_prev < lo, t, src_prev))
+        u = jnp.minimum(raised, hi)
+        if f is not None:
+            u = jnp.select([f == 0, f == 1, f == 2], [lo, hi, u_prev], u)
+            src = jnp.select([f == 0, f == 1, f == 2], [t, T + t, src_prev], src)
+        return (u, src), (u, src)
+
+    init = (jnp.asarray(u0, low.dtype), jnp.asarray(-1, jnp.int32))
+    f = None if force is None else force.astype(jnp.int32)
+    xs = (low, high, jnp.arange(T, dtype=jnp.int32), f)
+    _, (u, src) = jax.lax.scan(step, init, xs)
+    return u, src
+
+
 class Backlash(eqx.Module):
     """Hysteresis-backlash flanked by two polynomials, paper eq. (1) and Fig. 2.
 

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from . import display
+from .._misc import lagged
 from .arx import ARX
 from .backlash import Backlash
 
@@ -46,15 +47,6 @@ def play_trajectory(backlash: Backlash, v: Float[Array, " time"], u0) -> Float[A
 
     _, u = jax.lax.scan(step, jnp.asarray(u0, v.dtype), v)
     return u
-
-
-def lagged(x: Float[Array, " time"], lag: int) -> Float[Array, " time"]:
-    """``x(t - lag)`` with ``x(t) = 0`` for ``t < 0`` (the zero initial conditions)."""
-    if lag == 0:
-        return x
-    if lag >= x.shape[0]:  # a record shorter than the lag sees only initial conditions
-        return jnp.zeros_like(x)
-    return jnp.concatenate([jnp.zeros(lag, x.dtype), x[:-lag]])
 
 
 def arx_prediction(arx: ARX, u, y):

@@ -1,9 +1,11 @@
 """The paper's three excitation signals, eqs. (14), (27) and (32)."""
 
 import equinox as eqx
+import jax
 import numpy as np
 
 from .._misc import positive_float, positive_int
+from .params import gauge_factor
 
 
 class GiriDesign(eqx.Module):
@@ -86,8 +88,8 @@ class GiriDesign(eqx.Module):
                 "HB(P1, P2) is not a backlash band there."
             )
         side = np.sign(gap[np.argmax(np.abs(gap))])  # +1: P1 below P2 (increasing backlash)
-        poly = np.polynomial.polynomial.polyval
-        mu = poly(-self.h_m, c2) - poly(self.h_m, c1)
+        with jax.ensure_compile_time_eval():
+            mu = float(gauge_factor(c1, c2, self.h_m))
         if not mu * side < 0:
             raise ValueError(
                 f"`{name}` with h_m = {self.h_m:g}: v = +h_m does not put the output on P1 "

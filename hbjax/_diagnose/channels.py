@@ -40,7 +40,8 @@ from jaxtyping import Array, Float
 from scipy.signal import lfilter
 
 from . import residual_tests as rt
-from .._core.model import AbstractModel, Hammerstein, lagged
+from .._core.model import AbstractModel, Hammerstein
+from .._misc import lagged
 
 #: FIR lags 0..LAGS of a channel entering as a second input
 LAGS = 3
@@ -123,15 +124,11 @@ def _all_pole(a, x):
     return jax.lax.scan(step, (zero,) * a.shape[0], x)[1]
 
 
-def _lag(x, k):
-    return np.concatenate([np.zeros(k), x[:len(x) - k]]) if k else x
-
-
 def _design(y_nom, w, a, variant):
     """Columns of the regression ``y - y_nom ~ X beta`` (gain, offset, then the channels')."""
     cols = [y_nom, np.ones_like(y_nom)]
     if variant in ("input", "input+slip"):
-        cols += [lfilter([1.0], np.r_[1.0, a], _lag(w[:, j], k))
+        cols += [lfilter([1.0], np.r_[1.0, a], lagged(jnp.asarray(w[:, j]), k))
                  for j in range(w.shape[1]) for k in range(LAGS + 1)]
     if variant in ("slip", "input+slip"):
         cols += [y_nom * w[:, j] for j in range(w.shape[1])]

@@ -18,7 +18,7 @@ from . import effects as fx
 from .kernel_effect import signals
 from .._core.arx import ARX
 from .._core.backlash import Backlash
-from .._misc import positive_int
+from .._misc import check_key, positive_int
 from .._core.model import Hammerstein, play_trajectory
 from .._core.simulate import simulate
 
@@ -89,10 +89,7 @@ def concealed_recording(effect: str | None, *, system: int = 0, inputs: str = "s
         raise TypeError(f"`noise` must be a real number, got {noise!r}.")
     if not (np.isfinite(float(noise)) and float(noise) >= 0):
         raise ValueError(f"`noise` must be a finite number >= 0, got {noise!r}.")
-    if key is not None and not (isinstance(key, jax.Array) and (
-            jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
-            or (key.dtype == jnp.uint32 and key.shape == (2,)))):
-        raise TypeError(f"`key` must be a JAX PRNG key or None, got {key!r}.")
+    check_key(key, optional=True)
     if isinstance(system, bool) or not (isinstance(system, int) and 0 <= system < len(systems)):
         raise ValueError(f"`system` must be an index 0..{len(systems) - 1}, got {system!r}.")
     key = jax.random.PRNGKey(0) if key is None else key

@@ -26,7 +26,6 @@ import dataclasses
 import json
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -42,6 +41,7 @@ from .._core.precision import require_x64
 from .._core.progress import check_progress, progress_bar
 from .._identify.recordings import as_input_output
 from .._misc import as_float_array, check_finite, same_length
+from .._misc import check_key, jsonable as _jsonable
 from .solve import evaluate_batch, jacobian
 from .effects import base_theta, resolve
 from .fitting import choose_starts, evaluate_candidates, fit_candidates
@@ -179,23 +179,6 @@ def _short(d):
     return json.dumps(_jsonable(d))[:300]
 
 
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.ndarray, jax.Array)):
-        return _jsonable(np.asarray(x).tolist())
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        x = float(x)
-        return x if math.isfinite(x) else None
-    return x
-
-
 def _check_inputs(model, v, y, holdout, effects, key):
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
@@ -218,8 +201,7 @@ def _check_inputs(model, v, y, holdout, effects, key):
             f"record too short for `holdout`={holdout}: {n} samples give {n_fit} to fit and "
             f"{n_hold} held out; need at least {need_fit} to fit and 50 held out.")
     effects = resolve(effects)
-    if key is not None and not isinstance(key, jax.Array):
-        raise TypeError("`key` must be a jax PRNG key or None.")
+    check_key(key, optional=True)
     return np.asarray(v), np.asarray(y), n_fit, effects
 
 

@@ -32,7 +32,8 @@ import numpy as np
 from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
-from .._core.model import AbstractModel, Hammerstein, lagged, play_trajectory
+from .._core.model import AbstractModel, Hammerstein, play_trajectory
+from .._misc import lagged
 from .kernel import Layout, iir_fft, play_gather
 
 

@@ -30,7 +30,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._core.backlash import polyval_ascending, power_columns
+from .._core.backlash import play_sources, polyval_ascending, power_columns
+from .._misc import lagged
 
 #: largest extra delay (samples) the extended simulator can represent
 MAX_DELAY = 12
@@ -157,10 +158,6 @@ def output_path(lay: Layout, theta, consts, y_lin, u_used):
     return jnp.clip(y, g("out_lo"), g("out_hi"))
 
 
-def _lag(x, k):
-    return jnp.concatenate([jnp.zeros(k, x.dtype), x[:-k]])
-
-
 def whiten(lay: Layout, theta, ints, y, y_sim):
     """Prediction error ``eps = D(q^-1) A_t(q^-1) (y - y_sim)`` (see module docstring)."""
     a = jnp.concatenate([lay.get(theta, "a"), lay.get(theta, "a_extra")])
@@ -170,8 +167,8 @@ def whiten(lay: Layout, theta, ints, y, y_sim):
     e = y - y_sim
     w = e
     for i in range(lay.na + 1):
-        w = w + (a[i] + s * da[i]) * _lag(e, i + 1)
-    return w + nd[0] * _lag(w, 1) + nd[1] * _lag(w, 2)
+        w = w + (a[i] + s * da[i]) * lagged(e, i + 1)
+    return w + nd[0] * lagged(w, 1) + nd[1] * lagged(w, 2)
 
 
 def prediction_error(lay: Layout, theta, ints, consts, v, y):
@@ -195,21 +192,11 @@ def prediction_error(lay: Layout, theta, ints, consts, v, y):
 
 
 def _play_indices(low, high, u0):
-    def step(carry, x):
-        u_prev, k, hi = carry
-        l_t, h_t, t = x
-        below, above = u_prev < l_t, u_prev > h_t
-        k = jnp.where(below | above, t, k)
-        hi = jnp.where(above, True, jnp.where(below, False, hi))
-        return (jnp.minimum(jnp.maximum(u_prev, l_t), h_t), k, hi), (k, hi)
-
-    t = jnp.arange(low.shape[0])
-    init = (jnp.asarray(u0, low.dtype), jnp.asarray(-1), jnp.asarray(False))
-    return jax.lax.scan(step, init, (low, high, t))[1]
-
-
-def _lag_n(x, k):
-    return x if k == 0 else _lag(x, k)
+    """For every ``t``, the last instant ``k(t)`` the clamp was active (``-1`` before) and
+    whether at the upper edge: the source indices of :func:`play_sources`."""
+    _, src = play_sources(low, high, u0=u0)
+    hi = src >= low.shape[0]
+    return jnp.where(hi, src - low.shape[0], src), hi
 
 
 def iir_fft(a, num):
@@ -266,7 +253,7 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
     b = jnp.concatenate([g("b"), g("b_extra")])
     da = jnp.concatenate([g("da"), jnp.zeros(1)])
     db = jnp.concatenate([g("db"), jnp.zeros(1)])
-    bu = sum((b[i] + s * db[i]) * _lag(u, i + 1) for i in range(nb + 1))
+    bu = sum((b[i] + s * db[i]) * lagged(u, i + 1) for i in range(nb + 1))
     du = u - jnp.concatenate([u[:1], u[:-1]])
     tf = t.astype(v.dtype)
     phase = 2 * math.pi * g("sin_freq")[0] * tf
@@ -278,15 +265,11 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
         z = (y_lin - consts[1]) / consts[2]
         shaped = y_lin + consts[2] * (g("nl2")[0] * z**2 + g("nl3")[0] * z**3) + add
         r = r - (jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) - y_lin - add)
-    w = r - bu + sum((a[i] + s * da[i]) * _lag(r, i + 1) for i in range(na + 1))
+    w = r - bu + sum((a[i] + s * da[i]) * lagged(r, i + 1) for i in range(na + 1))
     if criterion == "simulation":
         return iir_fft(a, w)
     nd = g("noise_d")
-    return w + nd[0] * _lag(w, 1) + nd[1] * _lag(w, 2)
-
-
-def _lag_rows(x, k):
-    return jnp.concatenate([jnp.zeros((k,) + x.shape[1:], x.dtype), x[:-k]])
+    return w + nd[0] * lagged(w, 1) + nd[1] * lagged(w, 2)
 
 
 def _iir_fft_cols(a, num):
@@ -341,12 +324,12 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
 
     b = jnp.concatenate([g("b"), g("b_extra")])
     db = jnp.concatenate([g("db"), jnp.zeros(1)])
-    bu = sum((b[i] + s * db[i]) * _lag(u, i + 1) for i in range(nb + 1))
-    Dbu = sum((b[i] + s * db[i])[:, None] * _lag_rows(Du, i + 1) for i in range(nb + 1))
+    bu = sum((b[i] + s * db[i]) * lagged(u, i + 1) for i in range(nb + 1))
+    Dbu = sum((b[i] + s * db[i])[:, None] * lagged(Du, i + 1) for i in range(nb + 1))
     for i in range(nb):
-        Dbu = Dbu.at[:, slots["b"][0] + i].add(_lag(u, i + 1))
-        Dbu = Dbu.at[:, slots["db"][0] + i].add(s * _lag(u, i + 1))
-    Dbu = Dbu.at[:, slots["b_extra"][0]].add(_lag(u, nb + 1))
+        Dbu = Dbu.at[:, slots["b"][0] + i].add(lagged(u, i + 1))
+        Dbu = Dbu.at[:, slots["db"][0] + i].add(s * lagged(u, i + 1))
+    Dbu = Dbu.at[:, slots["b_extra"][0]].add(lagged(u, nb + 1))
 
     du = u - jnp.concatenate([u[:1], u[:-1]])
     Ddu = Du - jnp.concatenate([Du[:1], Du[:-1]])
@@ -365,22 +348,22 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
     a = jnp.concatenate([g("a"), g("a_extra")])
     da = jnp.concatenate([g("da"), jnp.zeros(1)])
     r = y - add
-    w = r - bu + sum((a[i] + s * da[i]) * _lag(r, i + 1) for i in range(na + 1))
+    w = r - bu + sum((a[i] + s * da[i]) * lagged(r, i + 1) for i in range(na + 1))
     Dr = -Dadd
-    Dw = Dr - Dbu + sum((a[i] + s * da[i])[:, None] * _lag_rows(Dr, i + 1) for i in range(na + 1))
+    Dw = Dr - Dbu + sum((a[i] + s * da[i])[:, None] * lagged(Dr, i + 1) for i in range(na + 1))
     for i in range(na):
-        Dw = Dw.at[:, slots["a"][0] + i].add(_lag(r, i + 1))
-        Dw = Dw.at[:, slots["da"][0] + i].add(s * _lag(r, i + 1))
-    Dw = Dw.at[:, slots["a_extra"][0]].add(_lag(r, na + 1))
+        Dw = Dw.at[:, slots["a"][0] + i].add(lagged(r, i + 1))
+        Dw = Dw.at[:, slots["da"][0] + i].add(s * lagged(r, i + 1))
+    Dw = Dw.at[:, slots["a_extra"][0]].add(lagged(r, na + 1))
     if criterion == "simulation":
         # e = w / A:  de = (dw - (dA) e) / A
         e = iir_fft(a, w)
         for i in range(na):
-            Dw = Dw.at[:, slots["a"][0] + i].add(-_lag(e, i + 1))
-        Dw = Dw.at[:, slots["a_extra"][0]].add(-_lag(e, na + 1))
+            Dw = Dw.at[:, slots["a"][0] + i].add(-lagged(e, i + 1))
+        Dw = Dw.at[:, slots["a_extra"][0]].add(-lagged(e, na + 1))
         return _iir_fft_cols(a, Dw)
     nd = g("noise_d")
-    De = Dw + nd[0] * _lag_rows(Dw, 1) + nd[1] * _lag_rows(Dw, 2)
-    De = De.at[:, slots["noise_d"][0]].add(_lag(w, 1))
-    De = De.at[:, slots["noise_d"][0] + 1].add(_lag(w, 2))
+    De = Dw + nd[0] * lagged(Dw, 1) + nd[1] * lagged(Dw, 2)
+    De = De.at[:, slots["noise_d"][0]].add(lagged(w, 1))
+    De = De.at[:, slots["noise_d"][0] + 1].add(lagged(w, 2))
     return De

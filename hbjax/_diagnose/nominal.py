@@ -18,6 +18,7 @@ from .solve import fit_batch
 from .kernel_effect import base_theta
 from .kernel import MAX_DELAY
 from .._core.model import Hammerstein
+from .._identify.linear import arx_regressors
 
 
 def _static_start(v, y, na, nb, m, gap):
@@ -39,9 +40,8 @@ def _linear_start(v, y, na, nb, m, gap):
     """ARX by least squares on ``v`` with a constant, as a model whose backlash is a narrow
     band ``[v - gap, v + gap]`` around the identity (offset folded into the branches)."""
     T = len(y)
-    lag = lambda x, k: np.concatenate([np.zeros(k), x[:T - k]])  # noqa: E731
-    X = np.stack([-lag(y, i + 1) for i in range(na)] + [lag(v, i + 1) for i in range(nb)]
-                 + [np.ones(T)], 1)
+    X = np.concatenate([np.asarray(arx_regressors(jnp.asarray(v), jnp.asarray(y), na, nb)),
+                        np.ones((T, 1))], 1)
     start = max(na, nb)
     theta = np.linalg.lstsq(X[start:], y[start:], rcond=None)[0]
     a, b, const = theta[:na], theta[na:na + nb], theta[-1]

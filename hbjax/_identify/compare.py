@@ -8,10 +8,10 @@ import numpy as np
 
 from .._core import display
 from .._core.initial import estimate_initial_state, injection
-from .._core.model import AbstractModel, Hammerstein, lagged, play_trajectory
+from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent
-from .._misc import as_float_array, is_traced, same_length
+from .._misc import as_float_array, is_traced, lagged, same_length
 from .recordings import as_input_output
 
 INITIAL_STATES = ("zero", "estimate")

@@ -12,9 +12,10 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Bool, Float
 
-from .._core.arx import ARX
-from .._core.backlash import Backlash, polyval_ascending, power_columns
+from .._core.backlash import play_sources, polyval_ascending, power_columns
 from .._core.model import Hammerstein
+from .._core.params import model_from_theta, split_theta
+from .._misc import lagged
 
 PREDICTION = "prediction"
 SIMULATION = "simulation"
@@ -165,44 +166,10 @@ class Parametrisation(eqx.Module):
         return jax.jacfwd(self.theta)(jnp.zeros(self.size - 1))
 
     def model(self, z) -> Hammerstein:
-        theta = self.theta(z)
-        na, nb, m = self.na, self.nb, self.m
-        return Hammerstein(
-            Backlash(theta[na + nb:na + nb + m], theta[na + nb + m:]),
-            ARX(theta[:na], theta[na:na + nb]),
-        )
+        return model_from_theta(self.theta(z), self.na, self.nb)
 
 
 # --------------------------------------------------------------------------- residuals
-def play_sources(low: Float[Array, " time"], high: Float[Array, " time"], force=None):
-    """The play operator ``u(t) = min(max(u(t-1), low(t)), high(t))`` (``u(-1) = 0``) and,
-    for every ``t``, the instant whose band edge ``u(t)`` equals: ``src(t) = s`` if
-    ``u(t) = low(s)``, ``T + s`` if ``u(t) = high(s)``, ``-1`` while still ``u(-1)``.
-
-    ``force`` (optional, int per sample) overrides the clamp where the band is inverted
-    (``low > high``): 0 takes ``low``, 1 takes ``high``, 2 keeps ``u(t-1)``, -1 clamps.
-    The scan body is a few selects; all the arithmetic is vectorised outside it.
-    """
-    T = low.shape[0]
-    if force is None:
-        force = jnp.full(T, -1, jnp.int32)
-
-    def step(carry, inputs):
-        u_prev, src_prev = carry
-        lo, hi, t, f = inputs
-        raised = jnp.maximum(u_prev, lo)
-        src = jnp.where(raised > hi, T + t, jnp.where(u_prev < lo, t, src_prev))
-        u = jnp.minimum(raised, hi)
-        u = jnp.select([f == 0, f == 1, f == 2], [lo, hi, u_prev], u)
-        src = jnp.select([f == 0, f == 1, f == 2], [t, T + t, src_prev], src)
-        return (u, src), (u, src)
-
-    init = (jnp.zeros((), low.dtype), jnp.asarray(-1, jnp.int32))
-    xs = (low, high, jnp.arange(T, dtype=jnp.int32), force.astype(jnp.int32))
-    _, (u, src) = jax.lax.scan(step, init, xs)
-    return u, src
-
-
 def inverted_band_rule(low, high, x, lower_is_p1):
     """Where an estimate's branches cross (``low > high``, not a band), the output follows
     the branch of the input's direction of motion: ``P1`` (the rising branch) when ``x``
@@ -237,20 +204,8 @@ def _lag_sum(coef, x):
     """``sum_i coef[i] x(t - 1 - i)`` along the first axis (zero before t = 0)."""
     out = jnp.zeros_like(x)
     for i in range(coef.shape[0]):
-        out = out + coef[i] * lagged_rows(x, i + 1)
+        out = out + coef[i] * lagged(x, i + 1)
     return out
-
-
-def lagged_rows(x, lag: int):
-    """:func:`hbjax._core.model.lagged` along the first axis of an array of any rank."""
-    if lag == 0:
-        return x
-    return jnp.concatenate([jnp.zeros((lag,) + x.shape[1:], x.dtype), x[:-lag]])
-
-
-def _split(theta, na, nb):
-    m = (theta.shape[0] - na - nb) // 2
-    return theta[:na], theta[na:na + nb], theta[na + nb:na + nb + m], theta[na + nb + m:]
 
 
 # Band rules (an integer code passed where a boolean ``lower_is_p1`` used to be; ``False``
@@ -282,7 +237,7 @@ def _internal(theta, x, na, nb, band):
     the coefficients is the row of powers ``x(s)^i`` on that branch (a gather), which
     replaces differentiating through the sequential loop.
     """
-    _, _, c1, c2 = _split(theta, na, nb)
+    _, _, c1, c2 = split_theta(theta, na, nb)
     m = c1.shape[0]
     T = x.shape[0]
     band = jnp.asarray(band).astype(jnp.int32)
@@ -328,20 +283,20 @@ def _internal_signal_jvp(na, nb, primals, tangents):
 
 
 def _residual_and_jacobian(theta, x, y, lower_is_p1, na, nb, criterion):
-    a, b, _, _ = _split(theta, na, nb)
+    a, b, _, _ = split_theta(theta, na, nb)
     u, grad_c, grad_x, idx = _internal(theta, x, na, nb, lower_is_p1)
     w = _lag_sum(b, u)
-    lag_u = jnp.stack([lagged_rows(u, i + 1) for i in range(nb)], axis=1)
+    lag_u = jnp.stack([lagged(u, i + 1) for i in range(nb)], axis=1)
     lag_g = _lag_sum(b, grad_c)
     if criterion == PREDICTION:
         r = y + _lag_sum(a, y) - w
-        lag_y = [lagged_rows(y, i + 1) for i in range(na)]
+        lag_y = [lagged(y, i + 1) for i in range(na)]
         cols = [jnp.stack(lag_y, axis=1)] if na else []
         jac = jnp.concatenate(cols + [-lag_u, -lag_g], axis=1)
     else:
         y_sim = arx_filter(a, w)
         r = y - y_sim
-        lag_s = [lagged_rows(y_sim, i + 1) for i in range(na)]
+        lag_s = [lagged(y_sim, i + 1) for i in range(na)]
         cols = [jnp.stack(lag_s, axis=1)] if na else []
         jac = arx_filter(a, jnp.concatenate(cols + [-lag_u, -lag_g], axis=1))
     return r, jac, (a, b, grad_x, idx)

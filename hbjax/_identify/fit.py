@@ -14,13 +14,14 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._core import display
 from .._core.arx import ARX
-from .._core.backlash import Backlash
+from .._core.backlash import Backlash, play_sources
 from .._core.cache import ensure_compilation_cache
 from .._core.progress import check_progress, progress_bar
-from .._misc import is_traced, positive_int
+from .._misc import check_key, is_traced, positive_int
 from .._core.precision import require_x64
-from .criteria import data_scale, play_sources
-from .._core.model import Hammerstein, lagged
+from .criteria import data_scale
+from .linear import arx_least_squares
+from .._core.model import Hammerstein
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_criterion, total_samples
 from .quality import SIM_FIT_FLOOR
@@ -134,18 +135,12 @@ def random_backlash(key, m: int, scale) -> Backlash:
 def arx_given_backlash(backlash: Backlash, recordings, na: int, nb: int) -> ARX:
     """Least-squares ``a, b`` of the equation-error regression (eq. (10)) with
     ``u = HB(v)`` known: linear in ``a, b``, solved over all records at once."""
-    gram = jnp.zeros((na + nb, na + nb))
-    rhs = jnp.zeros(na + nb)
-    for v, y in recordings:
-        p1, p2 = backlash.p1(v), backlash.p2(v)
+    def internal(v):
         # the core operator (sorted band): the random starts' branches may cross
-        u, _ = play_sources(jnp.minimum(p1, p2), jnp.maximum(p1, p2))
-        cols = [-lagged(y, i + 1) for i in range(na)] + [lagged(u, i + 1) for i in range(nb)]
-        phi = jnp.stack(cols, axis=1)
-        gram = gram + phi.T @ phi
-        rhs = rhs + phi.T @ y
-    scale = jnp.sqrt(jnp.maximum(jnp.diagonal(gram), 1e-300))
-    theta = jnp.linalg.lstsq(gram / jnp.outer(scale, scale), rhs / scale)[0] / scale
+        p1, p2 = backlash.p1(v), backlash.p2(v)
+        return play_sources(jnp.minimum(p1, p2), jnp.maximum(p1, p2))[0]
+
+    theta = arx_least_squares([(internal(v), y) for v, y in recordings], na, nb)
     return ARX(theta[:na], theta[na:])
 
 
@@ -272,11 +267,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     starts = positive_int(starts, "starts")
     max_steps = positive_int(max_steps, "max_steps")
     check_criterion(criterion)
-    if not (isinstance(key, jax.Array) and (
-            (jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ())
-            or (key.dtype == jnp.uint32 and key.shape == (2,)))):
-        raise TypeError(f"`key` must be a single JAX PRNG key (jax.random.key or PRNGKey), "
-                        f"got {key!r}.")
+    check_key(key)
     recs = as_recordings(recordings)
     q = na + nb + 2 * m - 1
     if total_samples(recs) <= 2 * q:

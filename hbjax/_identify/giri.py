@@ -12,10 +12,12 @@ from jaxtyping import Array, Float, Int
 from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
-from .._misc import as_float_array, check_finite, is_traced
+from .._misc import as_float_array, check_finite, is_traced, lagged
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
-from .._core.model import Hammerstein, lagged
+from .._core.model import Hammerstein
+from .._core.params import gauge_factor
+from .linear import arx_regressors
 from .._core.signals import GiriDesign
 from .._results import RESULTS, message, raise_if_failed
 
@@ -100,7 +102,7 @@ def normalise(model: Hammerstein, h_m) -> Hammerstein:
     elif not math.isfinite(float(h_m)):
         raise ValueError(f"`h_m` must be finite, got {float(h_m)}.")
     bl = model.backlash
-    mu = bl.p2(-h_m) - bl.p1(h_m)
+    mu = gauge_factor(bl.c1, bl.c2, h_m)
     if is_traced(mu):
         mu = eqx.error_if(mu, mu == 0, "mu = P2(-h_m) - P1(h_m) is 0: cannot normalise.")
     elif float(mu) == 0.0:
@@ -126,9 +128,7 @@ def _least_squares(design, y2, offset):
     u_tilde = jnp.asarray(design.binary_internal(y2.shape[0]))
     # Before t = 0 the ARX block rests at zero, so y~(t<0) = -ybar1 and u~(t<0) = -M1*;
     # starting the rows at t = n uses recorded samples only.
-    cols = [-lagged(y_tilde, i) for i in range(1, n + 1)]
-    cols += [lagged(u_tilde, i) for i in range(1, n + 1)]
-    phi = jnp.stack(cols, axis=1)[n:]
+    phi = arx_regressors(u_tilde, y_tilde, n, n)[n:]
     target = y_tilde[n:]
     rows = phi.shape[0]
     gram = phi.T @ phi / rows

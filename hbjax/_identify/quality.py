@@ -12,6 +12,7 @@ from jaxtyping import Array, Bool, Float
 
 from .._core.backlash import polyval_ascending
 from .._core.model import Hammerstein
+from .._core.params import split_theta
 from .criteria import CORE_BAND, SIMULATION, _internal, record_residual, unpack, where_valid
 
 # A result whose free-run fit on its own estimation data (all records pooled) is below this
@@ -37,8 +38,7 @@ def core_consistent(theta_scaled, band, recordings, scale, na: int, nb: int):
     samples whose output differs (0 if none)."""
     ok = jnp.asarray(True)
     x_bad, depth = jnp.zeros(()), jnp.asarray(-jnp.inf)
-    m = (theta_scaled.shape[0] - na - nb) // 2
-    c1, c2 = theta_scaled[na + nb:na + nb + m], theta_scaled[na + nb + m:]
+    _, _, c1, c2 = split_theta(theta_scaled, na, nb)
     lower = jnp.asarray(band).astype(jnp.int32) == 1
     for v, _, mask in map(unpack, recordings):
         x = v / scale

@@ -27,7 +27,7 @@ from .criteria import (
 )
 from .._core.model import Hammerstein
 from .._results import RESULTS, raise_if_failed
-from .._core.params import flatten_params, param_names
+from .._core.params import flatten_params, gauge_factor, param_names
 from .quality import (
     SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
 )
@@ -128,7 +128,7 @@ def gauge_transform(model: Hammerstein, par: Parametrisation):
     """
     bl, arx = model.backlash, model.arx
     if par.gauge == PAPER:
-        mu = bl.p2(-par.h_m) - bl.p1(par.h_m)
+        mu = gauge_factor(bl.c1, bl.c2, par.h_m)
         ok = jnp.isfinite(mu) & (mu != 0)
         inv = 1.0 / jnp.where(ok, mu, 1.0)
         mu = jnp.where(ok, mu, 1.0)
@@ -491,9 +491,8 @@ def _check_gauge(model, h_m):
     bl = model.backlash
     if is_traced(h_m):
         return
-    # NumPy, not jnp: inside jit even constant jnp operations are traced.
-    poly = np.polynomial.polynomial.polyval
-    mu = float(poly(-h_m, np.asarray(bl.c2)) - poly(h_m, np.asarray(bl.c1)))
+    with jax.ensure_compile_time_eval():  # concrete even inside an outer jit
+        mu = float(gauge_factor(bl.c1, bl.c2, h_m))
     if mu == 0.0 or not np.isfinite(mu):
         raise ValueError(
             f"mu = P2(-h_m) - P1(h_m) is {mu} for the initial `model` and `h_m` = {h_m}: "

@@ -14,7 +14,8 @@ from .._core.backlash import Backlash
 from .._misc import is_traced, positive_float, positive_int
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
-from .criteria import PREDICTION, internal_signal, lagged_rows, lower_is_p1
+from .linear import arx_regressors, equilibrated_solve
+from .criteria import PREDICTION, internal_signal, lower_is_p1
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_h_m, check_model, total_samples
@@ -29,9 +30,7 @@ def _regressors(theta_c, x, y, lower, na, nb):
     """``phi(t) = [-y(t-1..na), u(t-1..nb)]`` of eq. (10) with ``u = HB(v)`` for the
     backlash coefficients ``theta_c = [c1, c2]`` (the ARX slots are unused)."""
     theta = jnp.concatenate([jnp.zeros(na + nb), theta_c])
-    u = internal_signal(theta, x, lower, na, nb)
-    cols = [-lagged_rows(y, i + 1) for i in range(na)] + [lagged_rows(u, i + 1) for i in range(nb)]
-    return jnp.stack(cols, axis=1)
+    return arx_regressors(internal_signal(theta, x, lower, na, nb), y, na, nb)
 
 
 def linear_part(theta_c, recordings, scale, lower, na, nb):
@@ -42,8 +41,7 @@ def linear_part(theta_c, recordings, scale, lower, na, nb):
         phi = _regressors(theta_c, v / scale, y, lower, na, nb)
         gram = gram + phi.T @ phi
         rhs = rhs + phi.T @ y
-    d = jnp.sqrt(jnp.maximum(jnp.diagonal(gram), 1e-300))
-    return jnp.linalg.solve(gram / jnp.outer(d, d), rhs / d) / d
+    return equilibrated_solve(gram, rhs, differentiable=True)
 
 
 def _projected_residuals(w, args):

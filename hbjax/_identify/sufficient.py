@@ -22,7 +22,8 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-from .criteria import Parametrisation, _internal, lagged_rows, unpack, where_valid
+from .._misc import lagged
+from .criteria import Parametrisation, _internal, unpack, where_valid
 
 # Rounds after which sources that still move hand over to the full solve. From a start far
 # from the optimum under an input whose switching instants depend on the band, each round
@@ -58,8 +59,8 @@ def statistics(z, par: Parametrisation, recordings):
     gram, codes, ssr = 0.0, [], 0.0
     for v, y, mask in map(unpack, recordings):
         _, g, _, idx = _internal(theta, v / par.scale, na, nb, par.band)
-        cols = ([y[:, None]] + [lagged_rows(y, i + 1)[:, None] for i in range(na)]
-                + [lagged_rows(g, j + 1) for j in range(nb)])
+        cols = ([y[:, None]] + [lagged(y, i + 1)[:, None] for i in range(na)]
+                + [lagged(g, j + 1) for j in range(nb)])
         # A padded record's rows beyond its samples are zero: they add nothing to the Gram.
         design = where_valid(mask, jnp.concatenate(cols, axis=1), 0.0)
         gram = gram + jnp.matmul(design.T, design, precision=jax.lax.Precision.HIGHEST)

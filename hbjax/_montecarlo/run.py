@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .._misc import is_traced, positive_float, positive_int
+from .._misc import check_key, positive_float, positive_int
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._core.progress import check_progress, make_bar
@@ -46,17 +46,10 @@ _AXIS = "realisations"
 
 
 def _check_key(key):
-    if isinstance(key, jax.Array) and not is_traced(key):
-        if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) and key.shape == ():
-            return key
-        if key.dtype == jnp.uint32 and key.shape == (2,):  # legacy jax.random.PRNGKey
-            return jax.random.wrap_key_data(key)
-    what = f"{type(key).__name__}" + (
-        f" of dtype {key.dtype} and shape {tuple(key.shape)}" if hasattr(key, "dtype") else ""
-    )
-    raise TypeError(
-        f"`key` must be a single JAX PRNG key, e.g. jax.random.key(0), got {what}."
-    )
+    key = check_key(key)
+    if key.dtype == jnp.uint32:  # legacy jax.random.PRNGKey
+        return jax.random.wrap_key_data(key)
+    return key
 
 
 def _check_lengths(lengths, design):
