@@ -33,7 +33,7 @@ def _read_column(path, key, role):
     """One numeric column of a CSV file; default: the only column, or ``role``'s default
     (``v``/``y`` by name in the layout hbjax writes, else the first/second column)."""
     from .._io.files import check_readable
-    from .._io.recording import read_csv_table
+    from .._io.csvtable import read_csv_table
 
     table = read_csv_table(check_readable(path, f"{role} file"))
     if key is None:
@@ -219,26 +219,12 @@ def cmd_identify_giri(args) -> int:
     return 0
 
 
-MONTE_CARLO_KEYS = {
-    "model": "a model file (path relative to the config) or \"default\" (hbjax.default_system())",
-    "design": "\"n=2,m=3,h_m=4\" or {\"n\": 2, \"m\": 3, \"h_m\": 4} (default: hbjax.default_design())",
-    "noise_std": "standard deviation of the noise (required)",
-    "lengths": "record lengths per experiment, a list (required)",
-    "realisations": "noise realisations per length (required)",
-    "seed": "PRNG seed (default 0)",
-    "estimator": "\"giri\" or \"refined\" (default \"giri\")",
-    "noise": "\"equation\" or \"output\" (default \"equation\")",
-    "chunk_size": "realisations per device per chunk (default: automatic)",
-    "keep_estimates": "keep every estimate, for the histograms (default false)",
-}
-
-
 def _read_json(path, what):
     import json
     import pathlib
 
     from .._io.files import check_readable
-    from .._io.recording import read_json_text
+    from .._io.readers import read_json_text
 
     p = check_readable(path, what)
     try:
@@ -246,112 +232,6 @@ def _read_json(path, what):
     except UnicodeDecodeError as exc:
         raise ValueError(f"{p}: not valid JSON ({exc}).") from None
     return read_json_text(text, p)
-
-
-def _study_config(path):
-    import pathlib
-
-    from .._core.defaults import default_design, default_system
-    from .._core.model import Hammerstein
-    from .._io.modelfile import load_model
-    from .._core.signals import GiriDesign
-
-    config = _read_json(path, "config file")
-    if not isinstance(config, dict):
-        raise ValueError(f"{path}: the config must be a JSON object with keys {sorted(MONTE_CARLO_KEYS)}.")
-    unknown = sorted(set(config) - set(MONTE_CARLO_KEYS))
-    if unknown:
-        raise ValueError(f"{path}: unknown config keys {unknown}; valid keys: {sorted(MONTE_CARLO_KEYS)}.")
-    missing = [k for k in ("noise_std", "lengths", "realisations") if k not in config]
-    if missing:
-        raise ValueError(f"{path}: missing config keys {missing} (see hbjax montecarlo --help).")
-    model_ref = config.get("model", "default")
-    if model_ref == "default":
-        model = default_system()
-    elif isinstance(model_ref, str):
-        model = load_model(pathlib.Path(path).parent / model_ref)
-    else:
-        raise ValueError(f"{path}: `model` must be a model-file path or \"default\".")
-    if not isinstance(model, Hammerstein):
-        raise ValueError(f"{path}: the Monte Carlo study needs an hbjax.Hammerstein model, got "
-                         f"{type(model).__name__}.")
-    design = config.get("design")
-    if design is None:
-        design = default_design()
-    elif isinstance(design, str):
-        design = _parse_design(design)
-    elif isinstance(design, dict) and set(design) == {"n", "m", "h_m"}:
-        design = GiriDesign(design["n"], design["m"], design["h_m"])
-    else:
-        raise ValueError(f"{path}: `design` must be \"n=2,m=3,h_m=4\" or an object with n, m, h_m.")
-    lengths = config["lengths"]
-    if not isinstance(lengths, list) or not lengths:
-        raise ValueError(f"{path}: `lengths` must be a non-empty list of integers.")
-    for key in ("seed", "realisations"):
-        value = config.get(key, 0)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"{path}: `{key}` must be an integer, got {value!r}.")
-    if not isinstance(config.get("keep_estimates", False), bool):
-        raise ValueError(f"{path}: `keep_estimates` must be true or false (a JSON boolean), got "
-                         f"{config['keep_estimates']!r}.")
-    noise_std = config["noise_std"]
-    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)):
-        raise ValueError(f"{path}: `noise_std` must be a number, got {noise_std!r}.")
-    return model, design, config
-
-
-def _jsonable(value):
-    """Arrays to nested lists with NaN/inf as null, numpy scalars to Python numbers."""
-    import math
-
-    import numpy as np
-
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(x) for x in value]
-    if isinstance(value, (np.integer, np.bool_)):
-        return value.item()
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
-def cmd_montecarlo(args) -> int:
-    import dataclasses
-
-    import jax
-
-    from .. import __version__
-    from .._io.modelfile import pretty_json
-    from .._montecarlo.run import monte_carlo
-
-    # Every output checked before a long study, not after it.
-    _check_outputs(args, {"--out": args.out, "--plot": args.plot},
-                   inputs={"the config file": args.config}, figures={"--plot"})
-    model, design, config = _study_config(args.config)
-    study = monte_carlo(
-        model, design,
-        noise_std=config["noise_std"], lengths=config["lengths"],
-        realisations=config["realisations"], key=jax.random.key(config.get("seed", 0)),
-        estimator=config.get("estimator", "giri"), noise=config.get("noise", "equation"),
-        chunk_size=config.get("chunk_size"), progress=not args.no_progress,
-        keep_estimates=config.get("keep_estimates", False) or args.plot is not None,
-    )
-    study.table()
-    fields = {f.name: _jsonable(getattr(study, f.name)) for f in dataclasses.fields(study)}
-    if not config.get("keep_estimates", False):
-        fields["estimates"] = None
-    doc = {"format": "hbjax-study", "hbjax_version": __version__, "config": config,
-           "design": {"n": design.n, "m": design.m, "h_m": design.h_m}, "study": fields}
-    items = [(args.out, pretty_json(doc) + "\n")]
-    if args.plot is not None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        items.append((args.plot, _figure_bytes(study.plot(), args.plot)))
-    _write_all(args, items)
-    return 0
 
 
 def cmd_diagnose(args) -> int:
@@ -413,7 +293,8 @@ def cmd_identify_fit(args) -> int:
     options = {} if args.max_steps is None else {"max_steps": args.max_steps}
     result = fit(
         [(r.v, r.y) for r in records], na=args.na, nb=args.nb, m=args.m,
-        key=jax.random.key(args.seed), starts=args.starts, criterion=args.criterion, **options,
+        key=jax.random.key(args.seed), starts=args.starts, criterion=args.criterion,
+        initial_state=args.initial_state, **options,
     )
     save_model(args.out, result.model, overwrite=args.force)
     samples = sum(len(r) for r in records)
@@ -424,6 +305,9 @@ def cmd_identify_fit(args) -> int:
     print(f"  standard errors (a, b, c1, c2) = {np.array2string(std, precision=3, separator=', ')}")
     print(f"  noise std = {float(result.noise_std):.4g}; {args.starts} starts, "
           f"{float(result.hit_rate):.0%} reached the best cost; {result.message}")
+    fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(result.sim_fit)))
+    start = "estimated initial state" if args.initial_state == "estimate" else "zero start"
+    print(f"  free-run fit on the recording(s) ({start}): {fits}")
     print(f"wrote {args.out}")
     return 0
 
