@@ -86,3 +86,91 @@ def test_crlb_properties_and_bad_input(ordinary):
         hbjax.crlb(model, (v, y), noise_std=sigma, h_m=4.0)
     with pytest.raises(ValueError, match="noise_std"):
         hbjax.crlb(model, (v, y), noise_std=0.0)
+
+
+def _poles(a):
+    return np.abs(np.roots(np.concatenate([[1.0], np.asarray(a)])))
+
+
+def test_fit_searches_within_stable_models(system):
+    """Data from a linear block with a pole at 1.003: refinement without the constraint
+    converges to an unstable model (refused); every start of `fit` stays stable."""
+    p1, p2 = 1.003, 0.5
+    unstable = hbjax.Hammerstein(system.backlash, hbjax.ARX([-(p1 + p2), p1 * p2], [1.0, 0.5]))
+    rng = np.random.default_rng(1)
+    n = 400
+    v = random_levels(rng, n)
+    y = np.asarray(hbjax.simulate(unstable, v, 0.05 * rng.normal(size=n)))
+    free = hbjax.refine(hbjax.normalise_static_gain(unstable), (v, y), throw=False)
+    assert free.result == hbjax.RESULTS.unstable and not bool(free.stable)
+    res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.PRNGKey(0), starts=4, throw=False,
+                    progress=False)
+    assert res.result != hbjax.RESULTS.unstable and bool(res.stable)
+    assert _poles(res.model.arx.a).max() < 1.0
+    for params in np.asarray(res.starts_params):
+        assert _poles(params[:2]).max() < 1.0
+
+
+@pytest.fixture(scope="module")
+def mid_motion():
+    """A record cut from the middle of a run: it does not start at rest (y(0) far from 0)."""
+    system = hbjax.default_system()
+    rng = np.random.default_rng(7)
+    n, skip = 1200, 300
+    v = random_levels(rng, n + skip)
+    xi = 0.1 * jax.random.normal(jax.random.PRNGKey(3), (n + skip,))
+    y = np.asarray(hbjax.simulate(system, v, xi))[skip:]
+    return system, v[skip:], y
+
+
+def test_fit_and_refine_estimate_the_initial_state(mid_motion):
+    system, v, y = mid_motion
+    assert abs(y[0]) > 1.0
+    truth = np.asarray(hbjax.flatten_params(hbjax.normalise_static_gain(system)))
+    res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.PRNGKey(0), starts=4,
+                    progress=False)
+    assert res.initial_state == "estimate"
+    est = np.asarray(hbjax.flatten_params(res.model))
+    assert np.all(np.abs(est - truth) < 5 * np.asarray(res.std))
+    # the reported free-run fit starts from the estimated initial state, as compare's
+    cmp = hbjax.compare(res.model, v, y, initial_state="estimate")
+    assert float(res.sim_fit[0]) == pytest.approx(cmp.fit, abs=1e-6)
+    zero = hbjax.compare(res.model, v, y, initial_state="zero")
+    assert cmp.fit > zero.fit
+    # refine: the prediction errors of the first max(na, nb) samples are left out
+    start = hbjax.normalise_static_gain(system)
+    r_est = hbjax.refine(start, (v, y), initial_state="estimate")
+    r_zero = hbjax.refine(start, (v, y), throw=False)
+    assert r_zero.initial_state == "zero" and r_est.initial_state == "estimate"
+    err_est = np.abs(np.asarray(hbjax.flatten_params(r_est.model)) - truth)
+    err_zero = np.abs(np.asarray(hbjax.flatten_params(r_zero.model)) - truth)
+    assert np.all(err_est < 5 * np.asarray(r_est.std))
+    assert np.all(err_zero < 5 * np.asarray(r_zero.std))  # (two samples' worth of bias)
+
+
+def test_simulation_criterion_estimates_the_initial_state(system):
+    """Output-error refinement on a record that does not start at rest (white output
+    noise: the simulation criterion is the maximum-likelihood one)."""
+    rng = np.random.default_rng(11)
+    n, skip = 1000, 250
+    v = random_levels(rng, n + skip)
+    y = np.asarray(hbjax.simulate(system, v))[skip:] + 0.1 * rng.normal(size=n)
+    v = v[skip:]
+    truth = np.asarray(hbjax.flatten_params(hbjax.normalise_static_gain(system)))
+    res = hbjax.refine(hbjax.normalise_static_gain(system), (v, y), criterion="simulation",
+                       initial_state="estimate")
+    est = np.asarray(hbjax.flatten_params(res.model))
+    assert np.all(np.abs(est - truth) < 5 * np.asarray(res.std))
+    # free run from the estimated initial state (play state included): the noise level
+    assert hbjax.compare(res.model, v, y).rmse == pytest.approx(0.1, rel=0.15)
+    zero = hbjax.refine(hbjax.normalise_static_gain(system), (v, y), criterion="simulation",
+                        throw=False)
+    assert float(zero.stats["cost"]) > 2 * float(res.stats["cost"])
+
+
+def test_initial_state_bad_input(ordinary):
+    _, v, y, _ = ordinary
+    with pytest.raises(ValueError, match="`initial_state` must be one of"):
+        hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.PRNGKey(0), initial_state="e")
+    with pytest.raises(ValueError, match="`initial_state` must be one of"):
+        hbjax.refine(hbjax.default_system(), (v, y), h_m=4.0, initial_state=None)

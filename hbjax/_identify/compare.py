@@ -7,22 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core import display
-from .._core.initial import estimate_initial_state, injection
+from .._core.initial import InitialState, estimate_initial_state, injection
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent
 from .._misc import as_float_array, is_traced, lagged, same_length
 from .recordings import as_input_output
-
-INITIAL_STATES = ("zero", "estimate")
-
-
-def check_initial_state(initial_state) -> str:
-    if not isinstance(initial_state, str) or initial_state not in INITIAL_STATES:
-        raise ValueError(
-            f"`initial_state` must be one of {INITIAL_STATES}, got {initial_state!r}."
-        )
-    return initial_state
+from .stable import INITIAL_STATES, check_initial_state, start_response  # noqa: F401
 
 
 def check_horizon(horizon):
@@ -149,6 +140,32 @@ def _record(v, y):
     return v, y, dt
 
 
+def extension_state(model: AbstractModel, v, y):
+    """Initial state of a model extension (a diagnosis effect: an :class:`hbjax.AbstractModel`
+    with a ``base`` Hammerstein) and its free run from it.
+
+    The play state ``u0`` is the base's (:func:`hbjax.estimate_initial_state` on the
+    base); the unknown past then enters the base's linear block as an equation error at
+    the first ``n = max(na, nb)`` samples, whose responses ``H`` (:func:`hbjax._identify.
+    stable.start_response`) are fitted to the free-run error by least squares:
+    ``y_hat = simulate(model, v, u0=u0) + H c``. Exact for effects acting on the input or
+    added to the linear block's output; a first-order account for effects inside the
+    recursion. The returned :class:`InitialState` holds the base's output lags that give
+    the same equation error (least squares when ``nb > na``)."""
+    base = model.base
+    dtype = jnp.result_type(v, y, base.arx.a)
+    u0 = estimate_initial_state(base, v, y).u0
+    free = simulate(model, v, u0=u0).astype(dtype)
+    h = start_response(base.arx.a.astype(dtype), base.arx.nb, v.shape[0], dtype)
+    coef = jnp.linalg.lstsq(h, y - free)[0]
+    y_hat = free + h @ coef
+    n, na = h.shape[1], base.arx.na
+    lags = jax.jacfwd(lambda y0: injection(base, y0, jnp.zeros((), dtype), n))(
+        jnp.zeros(na, dtype))
+    y0 = jnp.linalg.lstsq(lags, coef)[0] if na else jnp.zeros(0, dtype)
+    return InitialState(y0, jnp.asarray(u0, dtype), jnp.sum((y - y_hat) ** 2)), y_hat
+
+
 def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
             names=None) -> Comparison:
     """Compare model outputs with a measured output, as MATLAB's ``compare``.
@@ -165,8 +182,11 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
       and the figure's time axis is in seconds when its ``dt`` is known).
     - `initial_state`: ``"estimate"`` (default; output lags and play state estimated per
       model by :func:`hbjax.estimate_initial_state`, as MATLAB's
-      ``'InitialCondition', 'e'``: real records rarely start at rest at zero) or
-      ``"zero"`` (the paper's zero initial conditions).
+      ``'InitialCondition', 'e'``: real records rarely start at rest at zero; for a model
+      extension such as a diagnosis effect, :func:`extension_state`: the base's play
+      state and the past's response through the base's linear block by least squares,
+      the predictors starting from the play state only) or ``"zero"`` (the paper's zero
+      initial conditions).
     - `horizon`: ``None`` for the free run, or an integer ``>= 1``.
     - `names`: labels of the models (default ``model 0``, ``model 1``, ...).
 
@@ -181,9 +201,14 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
     for k, mdl in enumerate(models):
         if not isinstance(mdl, AbstractModel):
             raise TypeError(f"`model[{k}]` must be an hbjax model, got {type(mdl).__name__}.")
-    if initial_state == "estimate" and not all(isinstance(m, Hammerstein) for m in models):
-        raise TypeError("`initial_state='estimate'` needs hbjax.Hammerstein models; pass "
-                        "initial_state='zero' for model extensions.")
+    if initial_state == "estimate":
+        for k, mdl in enumerate(models):
+            if not isinstance(mdl, Hammerstein) and not isinstance(
+                    getattr(mdl, "base", None), Hammerstein):
+                raise TypeError(
+                    f"`initial_state='estimate'` needs hbjax.Hammerstein models or extensions "
+                    f"of one (a `base` Hammerstein); `model[{k}]` is a "
+                    f"{type(mdl).__name__}: pass initial_state='zero'.")
     names = tuple(f"model {k}" for k in range(len(models))) if names is None else tuple(names)
     if len(names) != len(models):
         raise ValueError(f"`names` must have one entry per model ({len(models)}), "
@@ -192,12 +217,15 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
     y_np = np.asarray(y)
     fits, rmses, y_hats, states = [], [], [], []
     for mdl in models:
-        state, kw = None, {}
-        if initial_state == "estimate":
+        state, kw, free_run = None, {}, None
+        if initial_state == "estimate" and not isinstance(mdl, Hammerstein):
+            state, free_run = extension_state(mdl, v, y)
+            kw = {"u0": state.u0}  # the predictors: the play state only
+        elif initial_state == "estimate":
             state = estimate_initial_state(mdl, v, y)
             kw = {"u0": state.u0, "y0": state.y0}
         if horizon is None:
-            y_hat = simulate(mdl, v, **kw)
+            y_hat = simulate(mdl, v, **kw) if free_run is None else free_run
         else:
             y_hat = predict_ahead(mdl, v, y, horizon, **kw)
         y_hat = np.asarray(y_hat)

@@ -16,6 +16,7 @@ from .._core.backlash import play_sources, polyval_ascending, power_columns
 from .._core.model import Hammerstein
 from .._core.params import model_from_theta, split_theta
 from .._misc import lagged
+from .stable import a_from_free, free_from_a, remove_start
 
 PREDICTION = "prediction"
 SIMULATION = "simulation"
@@ -88,6 +89,11 @@ class Parametrisation(eqx.Module):
     core: Bool[Array, ""] | bool = False
     touch_x: Float[Array, " k"] | None = None
     touch_on: Bool[Array, " k"] | None = None
+    # ``stable``: ``z[:na]`` are the free parameters of a stable ``A`` (tanh of the
+    # reflection coefficients, :mod:`hbjax._identify.stable`) instead of ``a`` itself.
+    stable: bool = eqx.field(static=True, default=False)
+    # ``"estimate"``: the criteria leave the unknown past out (:func:`residuals`).
+    initial_state: str = eqx.field(static=True, default="zero")
 
     @property
     def band(self):
@@ -138,6 +144,8 @@ class Parametrisation(eqx.Module):
         return z - jnp.linalg.pinv(c) @ (c @ z - d)
 
     def _theta_scaled_free(self, z):
+        if self.stable and self.na:
+            z = jnp.concatenate([a_from_free(z[:self.na]), z[self.na:]])
         k = self.eliminated
         theta = jnp.concatenate([z[:k], jnp.zeros(1, z.dtype), z[k:]])
         g = self.constraint_row() * self._scaling_inverse()
@@ -159,10 +167,13 @@ class Parametrisation(eqx.Module):
         """Normalised ``theta`` -> free parameters (drops the eliminated coefficient)."""
         ts = theta * self._scaling()
         k = self.eliminated
-        return jnp.concatenate([ts[:k], ts[k + 1:]])
+        z = jnp.concatenate([ts[:k], ts[k + 1:]])
+        if self.stable and self.na:
+            z = jnp.concatenate([free_from_a(z[:self.na]), z[self.na:]])
+        return z
 
     def jacobian(self) -> Float[Array, "p q"]:
-        """``d theta / d z`` (constant: the parametrisation is affine)."""
+        """``d theta / d z`` (constant: the parametrisation is affine; not for ``stable``)."""
         return jax.jacfwd(self.theta)(jnp.zeros(self.size - 1))
 
     def model(self, z) -> Hammerstein:
@@ -383,13 +394,17 @@ def residuals(z, par: Parametrisation, recordings, criterion: str):
     zero at the padded samples of a padded record, see :func:`unpack`).
 
     The branches are evaluated in ``x = v / scale`` with the scaled coefficients, which is
-    the same operator as the unscaled branches on ``v``.
+    the same operator as the unscaled branches on ``v``. With
+    ``par.initial_state == "estimate"`` the unknown past is left out of each record's
+    residual (:func:`hbjax._identify.stable.remove_start`).
     """
     theta = par.theta_scaled(z)
     out = []
     for rec in recordings:
         v, y, mask = unpack(rec)
         r = record_residual(theta, v / par.scale, y, par.band, par.na, par.nb, criterion)
+        if par.initial_state == "estimate":
+            r = remove_start(r, theta[:par.na], par.nb, criterion, mask)
         out.append(where_valid(mask, r, 0.0))  # padded samples: zero residual, zero row
     return tuple(out)
 

@@ -25,6 +25,7 @@ from .._core.model import Hammerstein
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_criterion, total_samples
 from .quality import SIM_FIT_FLOOR
+from .stable import check_initial_state
 from .._results import code as result_code, raise_if_failed
 from .refine import (
     RESULTS, RefinementError, check_floor, describe, extrapolated_ranges, refine_traceable,
@@ -75,6 +76,7 @@ class FitResult(eqx.Module):
 
     criterion: str = eqx.field(static=True, default="prediction")
     gauge: str = eqx.field(static=True, default="static_gain")
+    initial_state: str = eqx.field(static=True, default="zero")
 
     @property
     def message(self) -> str:
@@ -132,15 +134,17 @@ def random_backlash(key, m: int, scale) -> Backlash:
     return Backlash(c1, c2)
 
 
-def arx_given_backlash(backlash: Backlash, recordings, na: int, nb: int) -> ARX:
+def arx_given_backlash(backlash: Backlash, recordings, na: int, nb: int,
+                       skip: int = 0) -> ARX:
     """Least-squares ``a, b`` of the equation-error regression (eq. (10)) with
-    ``u = HB(v)`` known: linear in ``a, b``, solved over all records at once."""
+    ``u = HB(v)`` known: linear in ``a, b``, solved over all records at once (leaving out
+    each record's first `skip` samples)."""
     def internal(v):
         # the core operator (sorted band): the random starts' branches may cross
         p1, p2 = backlash.p1(v), backlash.p2(v)
         return play_sources(jnp.minimum(p1, p2), jnp.maximum(p1, p2))[0]
 
-    theta = arx_least_squares([(internal(v), y) for v, y in recordings], na, nb)
+    theta = arx_least_squares([(internal(v), y) for v, y in recordings], na, nb, skip=skip)
     return ARX(theta[:na], theta[na:])
 
 
@@ -175,17 +179,20 @@ def _swap_covariance(cov, swap, na, nb, m):
 def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32,
                   criterion: str = "prediction", max_steps: int = 256,
                   rtol: float = 1e-7, atol: float = 1e-7,
-                  min_sim_fit: float = SIM_FIT_FLOOR) -> FitResult:
+                  min_sim_fit: float = SIM_FIT_FLOOR,
+                  initial_state: str = "estimate") -> FitResult:
     """Traceable core of :func:`fit` (recordings a tuple of ``(v, y)`` arrays)."""
     scale = data_scale(recordings)
     keys = jax.random.split(key, starts)
 
     def one(k):
         bl = random_backlash(k, m, scale)
-        init = Hammerstein(bl, arx_given_backlash(bl, recordings, na, nb))
+        skip = max(na, nb) if initial_state == "estimate" else 0
+        init = Hammerstein(bl, arx_given_backlash(bl, recordings, na, nb, skip))
         return refine_traceable(init, recordings, criterion=criterion, h_m=None,
                                 max_steps=max_steps, rtol=rtol, atol=atol, statistics=False,
-                                min_sim_fit=min_sim_fit)
+                                min_sim_fit=min_sim_fit, initial_state=initial_state,
+                                stable=True)
 
     res = jax.vmap(one)(keys)
     ok = res.result == RESULTS.successful
@@ -212,7 +219,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         res.stable[best], jnp.where(swap, ident[perm], ident),
         jnp.where(swap, active[::-1], active), res.data_range[best], res.core_finish[best],
         costs, params, result_code(res.result), spread, jnp.sum(hits) / starts, best,
-        criterion, "static_gain",
+        criterion, "static_gain", initial_state,
     )
 
 
@@ -221,7 +228,8 @@ _fit_jit = eqx.filter_jit(fit_traceable)
 
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         criterion: str = "prediction", max_steps: int = 256,
-        min_sim_fit: float = SIM_FIT_FLOOR, throw: bool = True, progress=True) -> FitResult:
+        min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "estimate",
+        throw: bool = True, progress=True) -> FitResult:
     """Identify an HB-Hammerstein model from ordinary recordings (steps, multisines, random
     levels; no special input), by multi-start nonlinear least squares.
 
@@ -231,9 +239,14 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     Levenberg–Marquardt; the ``starts`` refinements run together under ``jax.vmap``. The
     best converged local optimum is returned with the spread of all of them.
 
-    A start succeeds only if it converged, its linear block is stable (A3: an unstable
-    optimum is ``RESULTS.unstable``, never returned as a success) and its free-run fit on
-    the estimation data clears `min_sim_fit`; the best such start is returned.
+    Every start searches within the stable linear blocks only (assumption A3): ``A`` is
+    parametrised by its reflection coefficients ``k_i = tanh(zeta_i)`` (Levinson step-up,
+    :mod:`hbjax._identify.stable`), so the search cannot leave the stable models and an
+    unstable least-squares start is projected onto them. Where the data would prefer an
+    unstable ``A`` (a drift, an integrator) the optimum lies at the stability boundary
+    (a pole close to 1) instead. A start succeeds only if it converged, its linear block is
+    stable and its free-run fit on the estimation data clears `min_sim_fit`; the best such
+    start is returned.
 
     Normalisation (no ``h_m`` is needed): ``B(1) = b_1 + ... + b_nb = 1`` (all the static
     gain in the backlash, assumption A5), and ``P1`` is the branch a rising input drives
@@ -251,6 +264,10 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     - `max_steps`: Levenberg–Marquardt steps per start.
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data below
       which a start is not a success (``RESULTS.poor_fit``; default 0 %).
+    - `initial_state`: ``"estimate"`` (default: real records rarely start at rest) or
+      ``"zero"`` (the paper's convention); see :func:`hbjax.refine`. With ``"estimate"``
+      the criterion leaves the unknown past out and `sim_fit` starts from the initial
+      state :func:`hbjax.estimate_initial_state` finds.
     - `throw`: raise :class:`hbjax.RefinementError` if no start succeeded.
     - `progress`: a progress bar (``tqdm.auto``, on stderr) once the fit has run for more
       than 2 s on a terminal or in Jupyter; ``False`` silences it, a dict passes options
@@ -267,6 +284,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     starts = positive_int(starts, "starts")
     max_steps = positive_int(max_steps, "max_steps")
     check_criterion(criterion)
+    check_initial_state(initial_state)
     check_key(key)
     recs = as_recordings(recordings)
     q = na + nb + 2 * m - 1
@@ -278,7 +296,8 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     # The starts run together in one vmapped program: the bar shows the elapsed time.
     with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
         res = _fit_jit(recs, key, na=na, nb=nb, m=m, starts=starts, criterion=criterion,
-                       max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit))
+                       max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit),
+                       initial_state=initial_state)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):

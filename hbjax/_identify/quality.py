@@ -13,7 +13,9 @@ from jaxtyping import Array, Bool, Float
 from .._core.backlash import polyval_ascending
 from .._core.model import Hammerstein
 from .._core.params import split_theta
+from .._core.initial import _estimate
 from .criteria import CORE_BAND, SIMULATION, _internal, record_residual, unpack, where_valid
+from .stable import remove_start
 
 # A result whose free-run fit on its own estimation data (all records pooled) is below this
 # is not a success (RESULTS.poor_fit): the model simulates worse than each record's mean.
@@ -83,11 +85,14 @@ def is_stable(a) -> Bool[Array, ""]:
     return jnp.all(jnp.abs(k) < 1.0) & jnp.all(jnp.isfinite(k))
 
 
-def simulation_fit(model: Hammerstein, recordings):
+def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
     """Free-run fit of ``model`` on each record, in percent,
     ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)`` (``y_sim`` from rest, core operator, as
-    :func:`hbjax.simulate`), the same pooled over all records (each centred on its own
-    mean), and the ranges of the input on which each branch decides the output.
+    :func:`hbjax.simulate`; with ``initial_state="estimate"`` from each record's initial
+    state estimated by :func:`hbjax.estimate_initial_state`, or for a padded record its
+    output lags by least squares, :func:`hbjax._identify.stable.remove_start`), the same
+    pooled over all records (each centred on its own mean), and the ranges of the input on
+    which each branch decides the output.
 
     Returns ``(fits, pooled, active)``: ``fits`` shape ``(records,)``; ``active`` shape
     ``(2, 2)``, ``[[lo, hi] of P1, [lo, hi] of P2]`` over the inputs at the source
@@ -100,6 +105,10 @@ def simulation_fit(model: Hammerstein, recordings):
     hi = jnp.full(2, -jnp.inf)
     for v, y, mask in map(unpack, recordings):
         r = record_residual(theta, v, y, CORE_BAND, na, nb, SIMULATION)
+        if initial_state == "estimate" and mask is None:
+            r = jnp.sqrt(_estimate(model, v, y).cost)  # the free run's error from it
+        elif initial_state == "estimate":
+            r = remove_start(where_valid(mask, r, 0.0), model.arx.a, nb, SIMULATION, mask)
         e2 = jnp.sum(where_valid(mask, r**2, 0.0))  # an overflowing padded tail is no error
         e2 = jnp.where(jnp.isfinite(e2), e2, jnp.inf)
         if mask is None:

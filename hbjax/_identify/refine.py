@@ -6,6 +6,8 @@ over the normalised parameters, with Levenberg–Marquardt through the different
 operator and ARX recursion. ``refine_traceable`` is its jit/vmap-able core.
 """
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -31,6 +33,7 @@ from .._core.params import flatten_params, gauge_factor, param_names
 from .quality import (
     SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
 )
+from .stable import check_initial_state
 from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 from .sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 
@@ -54,7 +57,8 @@ class RefineResult(eqx.Module):
       (informational: the model is the core operator ``L = min, H = max`` on the data).
     - `sim_fit`: free-run simulation fit (%) on each estimation record,
       ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)``, simulated from rest as
-      :func:`hbjax.simulate`; `sim_fit_pooled` over all records (``RESULTS.poor_fit``
+      :func:`hbjax.simulate` (from the estimated initial state with
+      ``initial_state="estimate"``); `sim_fit_pooled` over all records (``RESULTS.poor_fit``
       below :data:`hbjax._identify.quality.SIM_FIT_FLOOR`).
     - `stable`: whether ``A`` has all its poles inside the unit circle (A3;
       ``RESULTS.unstable`` otherwise).
@@ -66,7 +70,8 @@ class RefineResult(eqx.Module):
       constrain directly.
     - `core_finish`: whether the solve was finished on the core operator because the
       labelled band's optimum crossed where the crossing decides the output.
-    - `criterion`, `gauge`: what was minimised and how the gain ambiguity was fixed.
+    - `criterion`, `gauge`, `initial_state`: what was minimised, how the gain ambiguity
+      was fixed and whether the initial state was estimated.
     """
 
     model: Hammerstein
@@ -84,6 +89,7 @@ class RefineResult(eqx.Module):
     core_finish: Bool[Array, ""]
     criterion: str = eqx.field(static=True)
     gauge: str = eqx.field(static=True)
+    initial_state: str = eqx.field(static=True, default="zero")
 
     @property
     def message(self) -> str:
@@ -140,11 +146,13 @@ def gauge_transform(model: Hammerstein, par: Parametrisation):
     return Hammerstein(Backlash(bl.c1 * inv, bl.c2 * inv), ARX(arx.a, arx.b * mu)), ok
 
 
-def make_parametrisation(model, recordings, h_m, lower=True) -> Parametrisation:
+def make_parametrisation(model, recordings, h_m, lower=True, *, stable=False,
+                         initial_state="zero") -> Parametrisation:
     gauge = STATIC_GAIN if h_m is None else PAPER
     h = jnp.asarray(0.0 if h_m is None else h_m, jnp.float64)
     return Parametrisation(model.arx.na, model.arx.nb, model.backlash.m, gauge,
-                           data_scale(recordings), h, jnp.asarray(lower), jnp.asarray(False))
+                           data_scale(recordings), h, jnp.asarray(lower), jnp.asarray(False),
+                           stable=stable, initial_state=initial_state)
 
 
 def _flat_residuals(z, par, recordings, criterion):
@@ -263,7 +271,9 @@ def _solve_prediction(par, z0, recordings, **options):
 def _solve(par, z0, recordings, criterion, statistics, options):
     """One Levenberg–Marquardt solve under ``par``'s band rule:
     ``(z, result, steps, SSR, SSR0, J^T J)``."""
-    if criterion == PREDICTION and statistics and worth_it(par.na, par.nb, par.m):
+    # (the statistics cover every sample: not with the first ones left out)
+    if (criterion == PREDICTION and statistics and par.initial_state == "zero"
+            and worth_it(par.na, par.nb, par.m)):
         return _solve_prediction(par, z0, recordings, **options)
     return _solve_full(par, z0, recordings, criterion, **options)
 
@@ -350,8 +360,13 @@ def _touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion
 def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "prediction",
                      h_m=None, max_steps: int = 256, rtol: float = 1e-7,
                      atol: float = 1e-7, statistics: bool = True,
-                     min_sim_fit: float = SIM_FIT_FLOOR) -> RefineResult:
+                     min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "zero",
+                     stable: bool = False) -> RefineResult:
     """Traceable core of :func:`refine`: no checks, never raises, result code in `.result`.
+
+    ``stable=True`` searches within the stable linear blocks only (``A`` through its
+    reflection coefficients, :mod:`hbjax._identify.stable`; an unstable start is projected
+    onto them); the covariance is then that of the usual parameters at the optimum.
 
     With ``statistics=True`` (default) the prediction criterion is solved on the Gram matrix
     of its bilinear regressors, one pass over the data per round (:mod:`hbjax._identify.sufficient`),
@@ -373,7 +388,8 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     ``jax.jit`` and ``jax.vmap`` (e.g. over noise realisations with the inputs shared);
     see :func:`refine_batch`.
     """
-    par = make_parametrisation(model, recordings, h_m)
+    par = make_parametrisation(model, recordings, h_m, stable=stable,
+                               initial_state=initial_state)
     start, ok = gauge_transform(model, par)
     # The band's orientation is taken from the (normalised) start and kept fixed.
     par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
@@ -384,6 +400,13 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     par, z, result, steps, ssr, jtj = _touch_where_decisive(par, z, result, steps, ssr, jtj,
                                                             recordings, criterion,
                                                             statistics, options)
+    if stable:
+        # Back to the affine parameters (a itself) for the covariance and the checks.
+        theta = par.theta(z)
+        par = dataclasses.replace(par, stable=False)
+        z = par.free(theta)
+        jac = jax.jacfwd(_flat_residuals)(z, par, recordings, criterion)
+        jtj = jac.T @ jac
     n = sample_count(recordings)
     fitted, result, stats, cov, noise_std = summarise(par, z, ssr, ssr0, jtj, n, result,
                                                       steps, ok)
@@ -402,7 +425,7 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
     theta_s = par.free(flatten_params(fitted))
     consistent, _ = core_consistent(par.theta_scaled(theta_s), par.band, recordings, par.scale,
                                  par.na, par.nb)
-    fits, pooled, active = simulation_fit(fitted, recordings)
+    fits, pooled, active = simulation_fit(fitted, recordings, par.initial_state)
     stable = is_stable(fitted.arx.a)
     if jtj is None:
         ident = jnp.ones(par.size, bool)
@@ -429,14 +452,15 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
         data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
     return RefineResult(fitted, result, stats, cov, noise_std, closing, fits, pooled, stable,
                         ident, active, data_range, jnp.asarray(par.core), criterion,
-                        par.gauge)
+                        par.gauge, par.initial_state)
 
 
 @eqx.filter_jit
-def _refine_jit(model, recordings, criterion, h_m, max_steps, rtol, atol, min_sim_fit):
+def _refine_jit(model, recordings, criterion, h_m, max_steps, rtol, atol, min_sim_fit,
+                initial_state="zero"):
     return refine_traceable(model, recordings, criterion=criterion, h_m=h_m,
                             max_steps=max_steps, rtol=rtol, atol=atol,
-                            min_sim_fit=min_sim_fit)
+                            min_sim_fit=min_sim_fit, initial_state=initial_state)
 
 
 @eqx.filter_jit
@@ -503,7 +527,8 @@ def _check_gauge(model, h_m):
 
 def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m=None,
            max_steps: int = 256, rtol: float = 1e-7, atol: float = 1e-7,
-           min_sim_fit: float = SIM_FIT_FLOOR, throw: bool = True) -> RefineResult:
+           min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "zero",
+           throw: bool = True) -> RefineResult:
     """Refine an HB-Hammerstein model on recorded data by nonlinear least squares.
 
     Minimises, with :class:`optimistix.LevenbergMarquardt` through the differentiable
@@ -559,6 +584,14 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       scaled free parameters and residuals).
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data
       (default :data:`hbjax._identify.quality.SIM_FIT_FLOOR`, 0 %).
+    - `initial_state`: ``"zero"`` (default: the paper's experiments start at rest) or
+      ``"estimate"`` (records that do not start at rest, as MATLAB's
+      ``'InitialCondition', 'e'``): the prediction errors of the first ``max(na, nb)``
+      samples, whose regressors reach before the record, are left out, and the output
+      errors have the response to the unknown output and input lags removed by least
+      squares for the current parameters (:mod:`hbjax._identify.stable`); the reported
+      free-run fit figures start from the state :func:`hbjax.estimate_initial_state`
+      estimates (output lags and play state).
     - `throw`: raise :class:`RefinementError` if the result is not a success (default);
       otherwise inspect ``.result`` / ``.message``.
 
@@ -581,11 +614,12 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
         _check_gauge(model, h_m)
     min_sim_fit = check_floor(min_sim_fit)
+    check_initial_state(initial_state)
     if should_bucket(model, recs, h_m, min_sim_fit):
         # One program per bucket of record lengths; the padding is masked out of every sum.
         recs = padded_records(recs)
     res = _refine_jit(model, recs, criterion, h_m, max_steps, positive_float(rtol, "rtol"),
-                      positive_float(atol, "atol"), min_sim_fit)
+                      positive_float(atol, "atol"), min_sim_fit, initial_state)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     if throw and res.result != RESULTS.successful:

@@ -1,0 +1,61 @@
+"""Real recordings by the plain path: the Cascaded Tanks benchmark with the defaults of
+``hbjax identify fit`` (orders (2, 2, 3), criterion "simulation", initial state estimated,
+32 starts, seed 0), and the bundled friction-damper (BRFD) tests with ``hbjax.fit``.
+
+Prints the figures recorded in benchmarks/RESULTS.md ("Real data"). Run with
+``nice python benchmarks/real_data.py`` (several minutes on 2 cores).
+"""
+
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+import hbjax  # noqa: E402
+
+PUBLISHED = {"best linear approximation": 0.75, "nonlinear state-space (PNLSS)": 0.34}
+
+
+def poles(a):
+    return float(np.max(np.abs(np.roots(np.concatenate([[1.0], np.asarray(a)])))))
+
+
+def tanks(na=2, nb=2, m=3, criterion="simulation", starts=32):
+    est, val = hbjax.datasets.cascaded_tanks()
+    t0 = time.perf_counter()
+    res = hbjax.fit((est.v, est.y), na=na, nb=nb, m=m, key=jax.random.key(0), starts=starts,
+                    criterion=criterion, throw=False, progress=False)
+    wall = time.perf_counter() - t0
+    row = {"orders": (na, nb, m), "criterion": criterion, "result": res.message,
+           "largest pole": poles(res.model.arx.a), "wall s": round(wall, 1)}
+    for name, rec in (("estimation", est), ("validation", val)):
+        for state in ("estimate", "zero"):
+            row[f"{name} RMSE ({state})"] = hbjax.compare(res.model, rec.v, rec.y,
+                                                          initial_state=state).rmse
+    return row
+
+
+def brfd(name, step=4):
+    rec = hbjax.datasets.brfd(name)
+    v, y = rec.v[::step], rec.y[::step]
+    try:
+        res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.key(0), starts=32,
+                        criterion="simulation", progress=False)
+    except hbjax.RefinementError as err:
+        return {"record": name, "result": f"refused: {err}"[:160]}
+    return {"record": name, "result": res.message, "largest pole": poles(res.model.arx.a),
+            "free-run fit %": float(res.sim_fit[0])}
+
+
+if __name__ == "__main__":
+    print("Cascaded Tanks, published validation RMSE:", PUBLISHED)
+    for kw in ({}, {"criterion": "prediction"}, {"m": 4}):
+        row = tanks(**kw)
+        print("  " + "; ".join(f"{k}: {v:.3f}" if isinstance(v, float) else f"{k}: {v}"
+                               for k, v in row.items()), flush=True)
+    print("BRFD (decimated to 256 Hz), defaults of identify fit:")
+    for name in hbjax.datasets.brfd_names():
+        print("  ", brfd(name), flush=True)
