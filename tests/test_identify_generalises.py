@@ -140,8 +140,9 @@ def test_fit_carries_the_free_run_fit_of_every_record():
         y, _ = simulate_numpy(dict(a=[-1.2, 0.5], b=[1.0, 0.5], c1=[-1.0, 0.9, 0.01],
                                    c2=[1.0, 0.9, -0.01]), v, noise)
         records.append((v, y))
+    # records that start at rest: the fit figures from the zero start are simulate's
     res = hbjax.fit(records, na=2, nb=2, m=3, key=jax.random.PRNGKey(1), starts=4,
-                    progress=False)
+                    progress=False, initial_state="zero")
     assert res.sim_fit.shape == (2,)
     np.testing.assert_allclose(np.asarray(res.sim_fit), free_run_fit(res.model, records),
                                atol=1e-8)
