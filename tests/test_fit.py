@@ -174,3 +174,21 @@ def test_initial_state_bad_input(ordinary):
         hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.PRNGKey(0), initial_state="e")
     with pytest.raises(ValueError, match="`initial_state` must be one of"):
         hbjax.refine(hbjax.default_system(), (v, y), h_m=4.0, initial_state=None)
+
+
+def test_compare_estimates_the_initial_state_of_a_model_extension(system):
+    """A diagnosis effect (output saturation around the nominal model) on a record cut
+    from the middle of a run: the estimated start removes the start-up transient."""
+    effect = hbjax.EFFECTS["output_saturation"](system, -100.0, 3.0)
+    rng = np.random.default_rng(0)
+    v = np.repeat(rng.uniform(-8, 8, 100), 20)
+    y = np.asarray(hbjax.simulate(effect, v))
+    v, y = v[300:], y[300:]
+    zero = hbjax.compare(effect, v, y, initial_state="zero")
+    est = hbjax.compare(effect, v, y, initial_state="estimate")
+    assert est.fit > 99.0 and est.fit > zero.fit + 1.0
+    assert est.initial_states[0].y0.shape == (2,)
+    with pytest.raises(TypeError, match="initial_state='zero'"):
+        hbjax.compare(object.__new__(type("Bare", (hbjax.AbstractModel,), {
+            "simulate_trajectory": lambda *a: None, "predict_trajectory": lambda *a: None})),
+            v, y)
