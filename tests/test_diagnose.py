@@ -112,10 +112,12 @@ def test_fast_criterion_equals_exact_prediction_error(effect):
 
 @pytest.mark.parametrize("criterion", ["prediction", "simulation"])
 def test_hand_written_jacobian_matches_autodiff(criterion):
-    rec = hbjax.concealed_recording("coulomb_friction", system=0, n=400, key=jax.random.PRNGKey(5))
+    # The kernel's output-side friction slot is exercised explicitly below: the registered
+    # coulomb_friction effect now acts inside the recursion, outside this kernel.
+    rec = hbjax.concealed_recording("output_saturation", system=0, n=400, key=jax.random.PRNGKey(5))
     lay, theta, ints, consts = rec.true_model.parts()
     # move every extension off its neutral value so that every column is exercised
-    for name, val in (("sin_cos", 0.2), ("sin_freq", 0.05), ("drift_rate", 1e-3),
+    for name, val in (("friction", 0.3), ("sin_cos", 0.2), ("sin_freq", 0.05), ("drift_rate", 1e-3),
                       ("noise_d", [0.1, -0.05]), ("in_hi", 3.0), ("c1_extra", 0.1),
                       ("da", [0.01, 0.0]), ("db", [0.1, 0.0]), ("a_extra", 0.02)):
         theta = lay.put(theta, name, val)

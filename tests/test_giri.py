@@ -22,7 +22,7 @@ def test_noise_free_recovery_is_exact(system, design):
     res = hbjax.identify_giri(design, *ys)
     truth = hbjax.flatten_params(hbjax.normalise(system, design.h_m))
     np.testing.assert_allclose(hbjax.flatten_params(res.model), truth, atol=1e-8)
-    assert int(res.result) == 0
+    assert res.result == hbjax.RESULTS.successful
     assert float(res.gap) == pytest.approx(1.0, abs=1e-9)
     assert res.rows_ls == 2000 - design.n
     assert int(res.transient) > 0 and int(res.samples_offset) == 2000 - int(res.transient)
@@ -90,7 +90,7 @@ def test_zero_static_gain_is_refused(design):
     with pytest.raises(ValueError, match="B\\*\\(1\\) is not significantly different from 0"):
         hbjax.identify_giri(design, *ys)
     res = hbjax.identify_giri(design, *ys, throw=False)
-    assert int(res.result) == 3
+    assert res.result == hbjax.RESULTS.zero_static_gain
 
 
 def test_swing_that_does_not_cross_the_gap_is_reported(system):
@@ -98,7 +98,7 @@ def test_swing_that_does_not_cross_the_gap_is_reported(system):
     design = hbjax.GiriDesign(2, 3, 0.5)
     ys = _experiments(system, design, 3000, 0.1, jax.random.PRNGKey(3))
     res = hbjax.identify_giri(design, *ys, throw=False)
-    assert int(res.result) != 0
+    assert res.result != hbjax.RESULTS.successful
 
 
 def test_normalise_refuses_mu_zero():
