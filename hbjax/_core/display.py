@@ -386,6 +386,9 @@ def result_figures(result) -> dict:
         value = _lookup(result, path)
         if value is not None:
             out[label] = value
+    if getattr(result, "initial_state", None) is not None:
+        out["initial state"] = ("estimated" if result.initial_state == "estimate"
+                                else "zero (at rest)")
     costs = concrete(getattr(result, "starts_costs", None))
     if costs is not None:
         out["starts converged"] = f"{int(np.isfinite(costs).sum())} of {costs.shape[-1]}"
