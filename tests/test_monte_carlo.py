@@ -144,7 +144,7 @@ def test_failed_realisations_are_counted_and_excluded(system, design):
     assert np.all(np.isfinite(s.rmse))
     ok = ~failed[0]
     np.testing.assert_allclose(s.mean[0], s.estimates[0, ok].mean(axis=0), rtol=1e-13)
-    msg = hbjax._identify.giri.RESULT_MESSAGES[SINGULAR_LS]
+    msg = hbjax.RESULTS[hbjax.RESULTS.singular_ls]
     np.testing.assert_array_equal(s.failure_counts()[msg], failed.sum(axis=1))
     assert "failed" in s.table(file=open(os.devnull, "w"))
 
