@@ -12,10 +12,10 @@ import jax
 jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, "tests")
 
-import numpy as np  # noqa: E402
+import numpy as np
+from generators.paper_class import random_input, random_paper_system, to_hbjax
 
-import hbjax  # noqa: E402
-from generators.paper_class import random_input, random_paper_system, to_hbjax  # noqa: E402
+import hbjax
 
 for seed in range(3):
     rng = np.random.default_rng(100 + seed)
@@ -30,4 +30,4 @@ for seed in range(3):
     for crit in ("simulation", "prediction"):
         r = hbjax.fit((ve, ye), na=2, nb=2, m=3, key=jax.random.key(0), starts=16, criterion=crit, throw=False, progress=False)
         c = hbjax.compare([r.model, true], vv, yv)
-        print(seed, crit, r.message[:20], "val fit model %.2f truth %.2f" % tuple(c.fits), flush=True)
+        print(seed, crit, r.message[:20], f"val fit model {c.fits[0]:.2f} truth {c.fits[1]:.2f}", flush=True)

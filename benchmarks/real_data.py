@@ -12,9 +12,9 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-import hbjax  # noqa: E402
+import hbjax
 
 PUBLISHED = {"best linear approximation": 0.75, "nonlinear state-space (PNLSS)": 0.34}
 

@@ -27,7 +27,6 @@ reflection coefficients to ``|k| <= K_START``.
 Everything here is traceable (jit/vmap/jacfwd) and never raises on values.
 """
 
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
