@@ -170,7 +170,11 @@ def test_bad_input(system):
 
 # --- the concealed-effect study -------------------------------------------------------
 
-EFFECT_NAMES = list(hbjax.EFFECTS)
+# The first generator's suite: the effects it was built with. Effects added since
+# (level_dependent_dynamics, harmonic_distortion) are measured in test_diagnose_physics.py,
+# where naming them over seeds is still an open target.
+EFFECT_NAMES = [e for e in hbjax.EFFECTS if e not in ("level_dependent_dynamics",
+                                                      "harmonic_distortion")]
 SYSTEMS = (0, 1, 2)
 NOISE = {0: 0.02, 1: 0.05, 2: 0.03}
 N = 1500
