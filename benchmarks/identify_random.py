@@ -115,7 +115,7 @@ def succeeded(res):
     msg = getattr(res, "message", None)
     if msg is not None:
         return str(msg) == "success"
-    return int(res.result) == 0
+    return bool(res.result == hbjax.RESULTS.successful)
 
 
 def result_message(res):
