@@ -147,10 +147,10 @@ def test_diagnosis_summary_is_text_and_html(system):
                                   "dm_z": 5.5})
     tests = {"whiteness": {"p_value": 0.001, "lags_outside": 4},
              "independence": {"p_value": 0.002}}
-    d = hbjax.Diagnosis(True, [finding], tests, {}, 700, 300, system)
+    d = hbjax.Diagnosis(True, [finding], tests, {}, 700, 300, system, verdict="explained")
     text = d.summary()
     assert isinstance(text, str) and "61.2% -> 88.5%" in text
     html = d._repr_html_()
     assert "<td style='text-align:right'>88.5</td>" in html and "-42" in html
-    assert repr(d) == ("Diagnosis(mismatch=True, best='output_saturation', findings="
+    assert repr(d) == ("Diagnosis(verdict='explained', best='output_saturation', findings="
                        "['output_saturation'], n_fit=700, n_holdout=300)")
