@@ -10,8 +10,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein, play_trajectory
-from ..explain import rounded, saturation_mask
 from ..effect_base import neutral_ints
+from ..explain import rounded, saturation_mask
 from ..kernel_effect import AbstractKernelEffect, put
 from ..residual_tests import plateaus, windows
 
