@@ -67,6 +67,26 @@ def check_finite(x: jax.Array, name: str) -> jax.Array:
     return x
 
 
+# Squares of the samples enter every least-squares sum: beyond about 1e154 they overflow
+# float64. 1e100 leaves room for the sums over long records and the polynomial powers.
+MAX_MAGNITUDE = 1e100
+
+
+def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE):
+    """Refuse a concrete record whose samples are too large for the estimators' sums of
+    squares (they would overflow to inf and surface as a numerical failure elsewhere)."""
+    if is_traced(x):
+        return x
+    peak = float(np.max(np.abs(np.asarray(x)))) if np.size(x) else 0.0
+    if peak > limit:
+        raise ValueError(
+            f"`{name}` reaches a magnitude of {peak:.3g}; the estimators form sums of "
+            f"squares, which overflow float64 beyond about 1e154: rescale `{name}` (and the "
+            f"model) to units where its samples stay below {limit:.0e}."
+        )
+    return x
+
+
 def float_dtype(*trees):
     """The floating dtype a computation on these arrays/pytrees runs in (NumPy promotion of
     their floating leaves; JAX's default float when there are none)."""

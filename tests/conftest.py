@@ -1,6 +1,16 @@
+import os
+
 import jax
 import numpy as np
 import pytest
+
+
+# The suite compiles hundreds of programs once each in one process: writing them all to the
+# user's persistent compilation cache would only fill ~/.cache (and a crash inside JAX's
+# executable serialisation, seen once in a clean-clone run, would take the whole suite down).
+# The cache itself is tested in fresh subprocesses (tests/test_cold_start.py), which set or
+# clear this variable themselves.
+os.environ.setdefault("HBJAX_NO_COMPILATION_CACHE", "1")
 
 
 jax.config.update("jax_enable_x64", True)

@@ -197,3 +197,16 @@ def test_diagnose_sees_a_mismatch_in_data_of_huge_scale():
     v = D.h_m * np.sin(np.arange(600) / 20.0)
     y = np.asarray(hbjax.simulate(M, v, 0.1 * np.random.default_rng(4).standard_normal(600)))
     assert hbjax.diagnose(M, v, 1e80 * y, effects=["extra_delay"]).mismatch
+
+
+@pytest.mark.parametrize("name, call", [
+    ("diagnose", lambda s: hbjax.diagnose(M, _VR, s * _YR, effects=["extra_delay"])),
+    ("fit", lambda s: hbjax.fit((_VR, s * _YR), na=2, nb=2, m=3, key=jax.random.PRNGKey(0))),
+    ("refine", lambda s: hbjax.refine(MN, (_VR, s * _YR), h_m=D.h_m)),
+    ("identify_giri", lambda s: hbjax.identify_giri(D, _RECORDS[0], _RECORDS[1] * s, _RECORDS[2])),
+])
+def test_records_beyond_float_range_of_squares_are_refused_by_name(name, call):
+    # Sums of squares of 1e200 overflow float64: a clear refusal naming the record, not a
+    # raw LinAlgError or a failure blamed on an assumption of the method.
+    with pytest.raises(ValueError, match=r"reaches a magnitude of [\d.]+e\+20\d.*rescale"):
+        call(1e200)

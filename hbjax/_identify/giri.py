@@ -12,7 +12,7 @@ from jaxtyping import Array, Float, Int
 from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
-from .._misc import as_float_array, check_finite, is_traced, lagged
+from .._misc import as_float_array, check_finite, check_magnitude, is_traced, lagged
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._core.model import Hammerstein
@@ -254,7 +254,7 @@ def _record(y, name, minimum, what):
             f"`{name}` has {y.shape[0]} samples; it must cover at least {what} "
             f"({minimum} samples)."
         )
-    return check_finite(y, name)
+    return check_magnitude(check_finite(y, name), name)
 
 
 def _check_input_record(design, v, name, expected):

@@ -4,7 +4,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._misc import as_float_array, check_finite, is_traced, one_device, positive_float
+from .._misc import (
+    as_float_array, check_finite, check_magnitude, is_traced, one_device, positive_float,
+)
 from .criteria import CRITERIA
 from .._core.model import Hammerstein
 
@@ -89,7 +91,8 @@ def as_recordings(recordings, name: str = "recordings", *, model=None):
             )
         if v.shape[0] < 2:
             raise ValueError(f"`{tag}` must hold at least 2 samples, got {v.shape[0]}.")
-        out.append((check_finite(v, f"{tag} v"), check_finite(y, f"{tag} y")))
+        out.append(tuple(check_magnitude(check_finite(x, f"{tag} {side}"), f"{tag} {side}")
+                         for x, side in ((v, "v"), (y, "y"))))
     named = {f"{name}[{k}] {side}": arr for k, pair in enumerate(out)
              for side, arr in zip("vy", pair)}
     one_device(**named, model=model)
@@ -107,10 +110,14 @@ def check_criterion(criterion) -> str:
 
 
 def check_h_m(h_m):
-    """``None`` (static-gain normalisation), a traced value, or a finite number > 0."""
+    """``None`` (static-gain normalisation), a traced value, or a finite number > 0.
+
+    A number is returned as a float64 array: the compiled estimators take it as a runtime
+    value, so a new amplitude compiles nothing (a Python float would be a static argument
+    of ``filter_jit``, one compilation per value)."""
     if h_m is None or is_traced(h_m):
         return h_m
-    return positive_float(h_m, "h_m")
+    return jnp.asarray(positive_float(h_m, "h_m"), jnp.float64)
 
 
 def check_model(model, name: str = "model") -> None:
