@@ -17,6 +17,7 @@ from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .._core.model import Hammerstein
 from .._core.params import gauge_factor
+from .giri_band import project_onto_band
 from .linear import arx_regressors
 from .._core.signals import GiriDesign
 from .._results import RESULTS, message, raise_if_failed
@@ -49,6 +50,9 @@ class GiriResult(eqx.Module):
     - `gap`: measured ``P2*(-h_m) - P1*(h_m)`` (1 when the design assumptions hold).
     - `noise_std`: residual standard deviation of the LS stage (estimate of ``std(xi)``).
     - `b_star_sum_std`: standard error of ``B*(1)``.
+    - `band_shift`: largest change of a plateau value (in ``u*`` units) made to keep the
+      branches a band at the design's inputs (0: the paper's solve of (45)-(46) already
+      is one; see :mod:`hbjax._identify.giri_band`).
     - `result`: a :class:`hbjax.RESULTS` member, ``RESULTS.successful`` on success (see
       `message`).
     """
@@ -64,6 +68,7 @@ class GiriResult(eqx.Module):
     gap: Float[Array, ""]
     noise_std: Float[Array, ""]
     b_star_sum_std: Float[Array, ""]
+    band_shift: Float[Array, ""]
     result: RESULTS
 
     @property
@@ -199,13 +204,20 @@ def _stage3(design, y3, a, b_star_sum):
     onehot = (j_inst[None, :] == np.arange(2 * m)[:, None]).astype(float)
     counts = onehot.sum(axis=1)
     z_bar = (jnp.asarray(onehot) @ z[t_inst]) / counts / b_star_sum
-    levels = jnp.asarray(design.staircase_levels())
+    levels_np = np.asarray(design.staircase_levels(), float)
+    raw_gap = z_bar[m] - z_bar[0]
+    # The paper's plateau values held to the design's premise (a band at every applied
+    # input; see giri_band): changes nothing where the paper's values already form one.
+    z_band = project_onto_band(z_bar, levels_np / design.h_m, m, raw_gap > 0)
+    band_shift = jnp.max(jnp.abs(z_band - z_bar))
+    z_bar = z_band
+    levels = jnp.asarray(levels_np)
     c1, cond1_raw, cond1 = _vandermonde(levels[:m], z_bar[:m], design.h_m)
     c2, cond2_raw, cond2 = _vandermonde(levels[m:], z_bar[m:], design.h_m)
     conds = jnp.stack([jnp.maximum(cond1_raw, cond2_raw), jnp.maximum(cond1, cond2)])
     # Level j = 0 is +h_m on P1 and level j = m is -h_m on P2: M1* and M2*.
     gap = z_bar[m] - z_bar[0]
-    return c1, c2, conds, gap, jnp.asarray(counts.astype(int))
+    return c1, c2, conds, gap, jnp.asarray(counts.astype(int)), band_shift
 
 
 def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
@@ -222,7 +234,7 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
     offset, used = _offset(y1, transient)
     a, b_star, cond_ls, noise_std, b_sum_std, rows = _least_squares(design, y2, offset)
     b_sum = jnp.sum(b_star)
-    c1, c2, cond_v, gap, plateaus = _stage3(design, y3, a, b_sum)
+    c1, c2, cond_v, gap, plateaus, band_shift = _stage3(design, y3, a, b_sum)
     model = Hammerstein(Backlash(c1, c2), ARX(a, b_star))
     params = jnp.concatenate([a, b_star, c1, c2])
     zero_gain = jnp.abs(b_sum) <= 4 * b_sum_std + 1e-8 * jnp.sum(jnp.abs(b_star))
@@ -240,7 +252,7 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
         code = RESULTS.where(failed, item, code)
     return GiriResult(
         model, offset, transient, used, rows, plateaus, cond_ls, cond_v, gap, noise_std,
-        b_sum_std, code,
+        b_sum_std, band_shift, code,
     )
 
 
