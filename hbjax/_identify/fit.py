@@ -26,11 +26,9 @@ from .._core.params import flatten_params
 from .recordings import as_recordings, check_criterion, total_samples
 from .quality import SIM_FIT_FLOOR
 from .stable import check_initial_state
-from .._results import code as result_code, raise_if_failed
-from .refine import (
-    RESULTS, RefinementError, check_floor, describe, extrapolated_ranges, refine_traceable,
-    unidentified_names,
-)
+from .._results import RESULTS, code as result_code, raise_if_failed
+from .refine import check_floor, refine_traceable
+from .refine_result import RefinementError, describe, extrapolated_ranges, unidentified_names
 
 
 class FitResult(eqx.Module):

@@ -19,11 +19,10 @@ from .criteria import PREDICTION, internal_signal, lower_is_p1
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_h_m, check_model, total_samples
-from .._results import raise_if_failed
-from .refine import (
-    RESULTS, RefinementError, RefineResult, _check_gauge, _flat_residuals, finish,
-    gauge_transform, make_parametrisation, residual_summary, summarise,
-)
+from .._results import RESULTS, raise_if_failed
+from .refine import check_gauge
+from .refine_result import RefinementError, RefineResult, finish, summarise
+from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, residual_summary
 
 
 def _regressors(theta_c, x, y, lower, na, nb):
@@ -87,8 +86,8 @@ def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: 
     found, ok_end = gauge_transform(found, par)
     z = par.free(flatten_params(found))
     z0 = par.free(flatten_params(start))
-    r = _flat_residuals(z, par, recordings, PREDICTION)
-    jac = jax.jacfwd(_flat_residuals)(z, par, recordings, PREDICTION)
+    r = flat_residuals(z, par, recordings, PREDICTION)
+    jac = jax.jacfwd(flat_residuals)(z, par, recordings, PREDICTION)
     ssr, ssr0, jtj = residual_summary(par, z0, r, jac, recordings, PREDICTION)
     fitted, result, stats, cov, noise_std = summarise(
         par, z, ssr, ssr0, jtj, r.shape[0], sol.result, sol.stats["num_steps"], ok & ok_end)
@@ -126,7 +125,7 @@ def separable_ls(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 2
         raise ValueError(f"`recordings` hold {total_samples(recs)} samples; {q} free "
                          "parameters need more.")
     if not any(is_traced(x) for x in jax.tree_util.tree_leaves(model)):
-        _check_gauge(model, h_m)
+        check_gauge(model, h_m)
     res = _separable_jit(model, recs, h_m=h_m, max_steps=max_steps, rtol=positive_float(rtol, "rtol"),
                          atol=positive_float(atol, "atol"))
     if throw and is_traced(res.result._value):

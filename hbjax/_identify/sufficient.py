@@ -14,7 +14,7 @@ square). Levenberg–Marquardt then runs on the short residual ``F w`` (``F^T F 
 instead of the ``T``-long one, and a *round* (one pass over the data) recomputes the
 sources and the Gram at its solution. When a round leaves every source as it was, the frozen
 cost and the true cost coincide around the solution: it is a minimum of the true
-prediction-error cost, the one :func:`hbjax._identify.refine.solve` finds with a pass per step.
+prediction-error cost, the one :func:`hbjax._identify.refine_solve.solve` finds with a pass per step.
 """
 
 import jax

@@ -1,0 +1,93 @@
+"""The band rule of refinement after the first solve: the band's orientation taken from the
+optimum, touch equalities where an extrapolated branch's crossing would decide an output
+(an active set), and the finish on the core operator ``L = min, H = max`` where the data
+want a closing loop.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+
+from .criteria import lower_is_p1
+from .quality import core_consistent
+from .refine_solve import flat_residuals, solve_criterion
+
+
+# Touch equalities the labelled solve may add (one per round) before the core finish.
+MAX_TOUCHES = 3
+
+
+def touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion,
+                          statistics, options):
+    """Keep the labelled optimum where its branches cross only where no output depends on
+    it; otherwise constrain the branches to touch (``P1(x) = P2(x)``) at the input of the
+    first sample whose output the crossing changes, and solve again from the projection
+    (an active set, up to :data:`MAX_TOUCHES` levels: the constrained optimum, on which
+    the labelled and the core operators agree). If the crossing still decides outputs
+    then (the data want a closing loop), finish on the core operator from there."""
+    ok = optx.RESULTS.successful
+    par = eqx.tree_at(lambda p: (p.touch_x, p.touch_on), par,
+                      (jnp.zeros(MAX_TOUCHES), jnp.zeros(MAX_TOUCHES, bool)),
+                      is_leaf=lambda x: x is None)
+    # The start's orientation of the band may be the wrong one (its branches crossed on
+    # average over the data): take the optimum's, and solve again if it flips.
+    lower = lower_is_p1(par.model(z), recordings)
+    flip = (lower != par.lower_is_p1) & (result == ok)
+    par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower)
+
+    def reoriented(_):
+        z2, res2, steps2, ssr2, _, jtj2 = solve_criterion(par, z, recordings, criterion, statistics,
+                                                 options)
+        return z2, res2, steps + steps2, ssr2, jtj2
+
+    z, result, steps, ssr, jtj = jax.lax.cond(flip, reoriented,
+                                              lambda _: (z, result, steps, ssr, jtj), None)
+
+    def check(par, z):
+        return core_consistent(par.theta_scaled(z), par.band, recordings, par.scale,
+                               par.na, par.nb)
+
+    def again(state):
+        par, z, result, steps, ssr, jtj, k, consistent, _ = state
+        return ~consistent & (result == ok) & (k < MAX_TOUCHES)
+
+    def touch(state):
+        par, z, result, steps, ssr, jtj, k, consistent, x_bad = state
+        par = eqx.tree_at(lambda p: (p.touch_x, p.touch_on), par,
+                          (par.touch_x.at[k].set(x_bad), par.touch_on.at[k].set(True)))
+        z2, res2, steps2, ssr2, _, jtj2 = solve_criterion(par, par.feasible(z), recordings, criterion,
+                                                 statistics, options)
+        consistent, x_bad = check(par, z2)
+        return par, z2, res2, steps + steps2, ssr2, jtj2, k + 1, consistent, x_bad
+
+    consistent, x_bad = check(par, z)
+    state = (par, z, result, steps, ssr, jtj, jnp.asarray(0), consistent, x_bad)
+    par, z, result, steps, ssr, jtj, _, consistent, _ = jax.lax.while_loop(again, touch, state)
+    need_core = ~consistent & (result == ok)
+    core_par = eqx.tree_at(lambda p: (p.core, p.touch_on), par,
+                           (jnp.asarray(True), jnp.zeros(MAX_TOUCHES, bool)))
+
+    def on_core(_):
+        z2, res2, steps2, ssr2, _, jtj2 = solve_criterion(core_par, z, recordings, criterion,
+                                                 statistics, options)
+        return z2, res2, steps + steps2, ssr2, jtj2
+
+    def as_is(_):
+        return z, result, steps, ssr, jtj
+
+    z, result, steps, ssr, jtj = jax.lax.cond(need_core, on_core, as_is, None)
+    par = eqx.tree_at(lambda p: (p.core, p.touch_on), par,
+                      (need_core, par.touch_on & ~need_core))
+    # The touches are active inequalities, not knowledge: the covariance is that of the
+    # unconstrained parameters at the constrained optimum (a constrained Gauss-Newton
+    # matrix would claim the extrapolated branch pinned by the touch).
+    free_par = eqx.tree_at(lambda p: p.touch_on, par, jnp.zeros(MAX_TOUCHES, bool))
+    z = par.feasible(z)
+
+    def unconstrained(_):
+        jac = jax.jacfwd(flat_residuals)(z, free_par, recordings, criterion)
+        return jac.T @ jac
+
+    jtj = jax.lax.cond(jnp.any(par.touch_on), unconstrained, lambda _: jtj, None)
+    return free_par, z, result, steps, ssr, jtj

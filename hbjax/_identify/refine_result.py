@@ -1,0 +1,201 @@
+"""The result of a refinement and its assembly: covariance and statistics at the optimum,
+the quality checks that decide the final result code, and the result code in words.
+
+:func:`hbjax.refine` and :func:`hbjax.fit` report through these; separable least squares
+assembles its result with the same :func:`summarise` and :func:`finish`.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from .._core import display
+from .._core.model import Hammerstein
+from .._core.params import flatten_params, param_names
+from .._results import RESULTS
+from .criteria import branches_meet, unpack
+from .quality import (
+    SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
+)
+
+
+class RefinementError(ValueError):
+    """Raised by :func:`refine` / :func:`fit` (``throw=True``) when the solve failed."""
+
+
+class RefineResult(eqx.Module):
+    """What :func:`refine` found.
+
+    - `model`: the refined :class:`hbjax.Hammerstein`, normalised (see :func:`refine`).
+    - `result`: a :class:`RESULTS` code (``RESULTS.successful`` when converged); `message`
+      gives it in words.
+    - `stats`: ``{"steps", "cost", "initial_cost", "samples"}``: optimiser steps, mean
+      squared residual at the optimum and at the start, residuals used.
+    - `covariance`: ``sigma^2 (J^T J)^+`` mapped to the normalised parameters (order
+      a, b, c1, c2 of :func:`hbjax.flatten_params`); singular along the constraint.
+    - `noise_std`: ``sqrt(SSR / (N - q))``, ``q`` the number of free parameters.
+    - `branches_cross`: whether the branches cross or meet at some recorded input
+      (informational: the model is the core operator ``L = min, H = max`` on the data).
+    - `sim_fit`: free-run simulation fit (%) on each estimation record,
+      ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)``, simulated from rest as
+      :func:`hbjax.simulate` (from the estimated initial state with
+      ``initial_state="estimate"``); `sim_fit_pooled` over all records (``RESULTS.poor_fit``
+      below :data:`hbjax._identify.quality.SIM_FIT_FLOOR`).
+    - `stable`: whether ``A`` has all its poles inside the unit circle (A3;
+      ``RESULTS.unstable`` otherwise).
+    - `identified`: per parameter (flatten order), whether the data identify it;
+      `unidentified` lists the names of those that are not (their `std` is ``inf``).
+    - `active_ranges`: ``[[lo, hi] of P1, [lo, hi] of P2]``, the inputs at which each
+      branch decides the output (NaN: never); `data_range`: ``[min v, max v]``;
+      `extrapolated` says, per branch, where its values are extrapolations the data do not
+      constrain directly.
+    - `core_finish`: whether the solve was finished on the core operator because the
+      labelled band's optimum crossed where the crossing decides the output.
+    - `criterion`, `gauge`, `initial_state`: what was minimised, how the gain ambiguity
+      was fixed and whether the initial state was estimated.
+    """
+
+    model: Hammerstein
+    result: RESULTS
+    stats: dict
+    covariance: Float[Array, "p p"]
+    noise_std: Float[Array, ""]
+    branches_cross: Bool[Array, ""]
+    sim_fit: Float[Array, " records"]
+    sim_fit_pooled: Float[Array, ""]
+    stable: Bool[Array, ""]
+    identified: Bool[Array, " p"]
+    active_ranges: Float[Array, "2 2"]
+    data_range: Float[Array, " 2"]
+    core_finish: Bool[Array, ""]
+    criterion: str = eqx.field(static=True)
+    gauge: str = eqx.field(static=True)
+    initial_state: str = eqx.field(static=True, default="zero")
+
+    @property
+    def message(self) -> str:
+        """The result code in words, with the numbers it rests on (concrete results)."""
+        return describe(self)
+
+    @property
+    def std(self) -> Float[Array, " p"]:
+        """Standard errors (square roots of the covariance diagonal; ``inf`` for a
+        parameter the data do not identify)."""
+        return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance, axis1=-2, axis2=-1), 0.0))
+
+    def summary(self) -> display.Summary:
+        """Estimates, standard errors, 95% intervals, unidentified flags, fit figures and the
+        result message; a text table that renders as HTML in Jupyter."""
+        return display.estimation_summary(self, "Refinement", covariance=self.covariance)
+
+    def __repr__(self) -> str:
+        return display.pformat(self)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
+
+    @property
+    def unidentified(self) -> tuple:
+        """Names (:func:`hbjax.param_names`) of the parameters the data do not identify."""
+        return unidentified_names(self.model, self.identified)
+
+    @property
+    def extrapolated(self) -> dict:
+        """``{"P1": [(lo, hi), ...], "P2": [...]}``: input ranges inside the data where a
+        branch never decides the output (its values there are extrapolations)."""
+        return extrapolated_ranges(self.active_ranges, self.data_range)
+
+
+def summarise(par, z, ssr, ssr0, jtj, n, result, steps, ok):
+    """Covariance, noise level, stats and final result code at the optimum ``z``, from the
+    sum of squared residuals ``ssr`` (``ssr0`` at the start), ``J^T J`` and the number of
+    residuals ``n``.
+
+    ``cov(theta) = D sigma^2 (J^T J)^+ D^T`` with ``J = dr/dz`` and ``D = dtheta/dz``: the
+    usual asymptotic covariance of the least-squares estimate, in the normalised
+    parameters (the constraint direction has zero variance).
+    """
+    q = z.shape[0]
+    noise_var = ssr / jnp.maximum(n - q, 1)  # n: an int, or traced for padded records
+    cov_z = noise_var * jnp.linalg.pinv(jtj, hermitian=True)
+    d = par.jacobian()
+    cov = d @ cov_z @ d.T
+    finite = jnp.all(jnp.isfinite(z)) & jnp.isfinite(ssr)
+    result = RESULTS.where(ok, RESULTS.promote(result), RESULTS.gauge_undefined)
+    result = RESULTS.where(finite | ~ok, result, RESULTS.nonfinite)
+    stats = {"steps": steps, "cost": ssr / n, "initial_cost": ssr0 / n,
+             "samples": jnp.asarray(n)}
+    return par.model(z), result, stats, cov, jnp.sqrt(noise_var)
+
+
+def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jtj=None,
+           min_sim_fit=SIM_FIT_FLOOR):
+    """The result with its quality checks, first failing one wins after the solver's own
+    code: ``branches_cross`` (a labelled band whose crossing decides an output; refine's
+    core finish never leaves one), ``unstable`` (A3), ``closing_loop`` / ``poor_fit``
+    (free-run fit on the estimation data below ``min_sim_fit``; ``closing_loop`` when the
+    branches meet inside the data). Parameters the Gauss-Newton matrix ``jtj`` does not
+    identify get ``inf`` variance."""
+    theta_s = par.free(flatten_params(fitted))
+    consistent, _ = core_consistent(par.theta_scaled(theta_s), par.band, recordings, par.scale,
+                                 par.na, par.nb)
+    fits, pooled, active = simulation_fit(fitted, recordings, par.initial_state)
+    stable = is_stable(fitted.arx.a)
+    if jtj is None:
+        ident = jnp.ones(par.size, bool)
+    else:
+        ident = identified(jtj, par.jacobian())
+        cov = mark_unidentified(cov, ident)
+    closing = branches_meet(fitted, recordings)
+    good = result == RESULTS.successful
+    result = RESULTS.where(good & ~consistent, RESULTS.branches_cross, result)
+    good = result == RESULTS.successful
+    result = RESULTS.where(good & ~stable, RESULTS.unstable, result)
+    good = result == RESULTS.successful
+    poor = ~(pooled >= min_sim_fit)
+    result = RESULTS.where(good & poor & closing, RESULTS.closing_loop, result)
+    result = RESULTS.where(good & poor & ~closing, RESULTS.poor_fit, result)
+    v_all = jnp.concatenate([v for v, _, _ in map(unpack, recordings)])
+    valid = [mask for _, _, mask in map(unpack, recordings)]
+    if any(mask is not None for mask in valid):
+        valid = jnp.concatenate([jnp.ones(v.shape[0], bool) if mask is None else mask
+                                 for (v, _, _), mask in zip(map(unpack, recordings), valid)])
+        data_range = jnp.stack([jnp.min(jnp.where(valid, v_all, jnp.inf)),
+                                jnp.max(jnp.where(valid, v_all, -jnp.inf))])
+    else:
+        data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
+    return RefineResult(fitted, result, stats, cov, noise_std, closing, fits, pooled, stable,
+                        ident, active, data_range, jnp.asarray(par.core), criterion,
+                        par.gauge, par.initial_state)
+
+
+def describe(res) -> str:
+    """The result code in words; for the quality codes, with the numbers."""
+    text = RESULTS[res.result] or "success"
+    if res.result == RESULTS.poor_fit or res.result == RESULTS.closing_loop:
+        fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(res.sim_fit)))
+        text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, per record: "
+                 f"{fits}; floor {SIM_FIT_FLOOR:g} %)")
+    elif res.result == RESULTS.unstable:
+        a = np.asarray(res.model.arx.a)
+        radius = float(np.max(np.abs(np.roots(np.concatenate([[1.0], a]))))) if a.size else 0.0
+        text += f" (largest pole modulus {radius:.6g})"
+    return text
+
+
+def unidentified_names(model, identified) -> tuple:
+    names = param_names(model)
+    return tuple(n for n, ok in zip(names, np.asarray(identified)) if not ok)
+
+
+def extrapolated_ranges(active, data_range) -> dict:
+    active, (lo, hi) = np.asarray(active), np.asarray(data_range)
+    out = {}
+    for k, name in enumerate(("P1", "P2")):
+        a, b = active[k]
+        if not np.isfinite(a):
+            out[name] = [(float(lo), float(hi))]
+            continue
+        out[name] = [r for r in ((float(lo), float(a)), (float(b), float(hi))) if r[1] > r[0]]
+    return out
