@@ -33,7 +33,7 @@ import hbjax  # noqa: E402
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
-from generators.concealed_effects import ALL_EFFECTS, concealed_case  # noqa: E402
+from generators.concealed_effects import ALL_EFFECTS, concealed_case, random_base  # noqa: E402
 
 NONE = "(none)"
 
@@ -47,7 +47,7 @@ def diagnose_case(case):
     return d
 
 
-def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print):
+def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, structures=None):
     rng = np.random.default_rng(seed)
     # Round-robin over the effects, so that a partial run is balanced.
     jobs = [(e, i) for i in range(max(per_effect, clean))
@@ -57,7 +57,9 @@ def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print):
         rec = dict(effect=effect, index=i)
         t0 = time.perf_counter()
         try:
-            case = concealed_case(rng, effect, n=n, nominal=nominal)
+            base = (random_base(rng, **structures[k % len(structures)]) if structures
+                    else None)
+            case = concealed_case(rng, effect, n=n, nominal=nominal, base=base)
             rec.update(n=len(case["v"]), input_kind=case["input_kind"], size=case["size"],
                        ratio=case["ratio"], orders=[case["base"][x] for x in ("na", "nb", "m")],
                        description=case["description"])
@@ -169,6 +171,9 @@ def main(argv=None):
                    help="nominal model: the true base system (default) or hbjax.fit on a "
                         "separate clean recording")
     p.add_argument("--n", type=int, default=None, help="fix the record length")
+    p.add_argument("--structures", default=None, metavar="NA,NB,M:...",
+                   help="cycle through these base structures (orders drawn at random "
+                        "otherwise); with --n, compiled code is shared between cases")
     p.add_argument("--json", default=None, help="write per-case records and the summary here")
     p.add_argument("--summarise-log", default=None, metavar="FILE",
                    help="no run: rebuild the summary from the per-case lines a (possibly "
@@ -186,7 +191,12 @@ def main(argv=None):
         print(report(records, [e for e in effects if any(r["effect"] == e for r in records)]))
         return
     t0 = time.perf_counter()
-    records = run(effects, args.per_effect, args.clean, args.seed, args.nominal, args.n)
+    structures = None
+    if args.structures:
+        structures = [dict(zip(("na", "nb", "m"), map(int, s.split(","))))
+                      for s in args.structures.split(":")]
+    records = run(effects, args.per_effect, args.clean, args.seed, args.nominal, args.n,
+                  structures=structures)
     text = report(records, effects)
     missing = [e for e in effects if e not in hbjax.EFFECTS]
     print()
