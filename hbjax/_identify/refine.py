@@ -22,7 +22,7 @@ from .._results import RESULTS, raise_if_failed
 from .criteria import lower_is_p1, sample_count
 from .quality import SIM_FIT_FLOOR
 from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
-from .refine_band import touch_where_decisive
+from .refine_band import best_of_core_start, touch_where_decisive
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
 from .stable import check_initial_state
@@ -35,7 +35,7 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
                      h_m=None, max_steps: int = 256, rtol: float = 1e-7,
                      atol: float = 1e-7, statistics: bool = True,
                      min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "zero",
-                     stable: bool = False) -> RefineResult:
+                     stable: bool = False, core_start: bool = False) -> RefineResult:
     """Traceable core of :func:`refine`: no checks, never raises, result code in `.result`.
 
     ``stable=True`` searches within the stable linear blocks only (``A`` through its
@@ -54,6 +54,11 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     operator's on the data (an extrapolated branch crossing the active one where that
     decides the output), the core operator ``L = min, H = max`` from there, so that the
     returned model's fit is always the fit of :func:`hbjax.simulate`'s model.
+
+    ``core_start=True`` (what :func:`refine` does) also solves on the core operator from
+    the start itself and keeps the better of the two optima
+    (:func:`hbjax._identify.refine_band.best_of_core_start`); multi-start fitting leaves
+    it off (each start is cheap and many).
 
     ``recordings`` must already be a tuple of ``(v, y)`` float64 array pairs, or of padded
     records ``(v, y, n)`` (zero-padded to a bucket length, ``n`` recorded samples as an
@@ -74,6 +79,10 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     par, z, result, steps, ssr, jtj = touch_where_decisive(par, z, result, steps, ssr, jtj,
                                                             recordings, criterion,
                                                             statistics, options)
+    if core_start:
+        par, z, result, steps, ssr, jtj = best_of_core_start(
+            par, z0, (par, z, result, steps, ssr, jtj), recordings, criterion, statistics,
+            options)
     if stable:
         # Back to the affine parameters (a itself) for the covariance and the checks.
         theta = par.theta(z)
@@ -93,7 +102,8 @@ def _refine_jit(model, recordings, criterion, h_m, max_steps, rtol, atol, min_si
                 initial_state="zero"):
     return refine_traceable(model, recordings, criterion=criterion, h_m=h_m,
                             max_steps=max_steps, rtol=rtol, atol=atol,
-                            min_sim_fit=min_sim_fit, initial_state=initial_state)
+                            min_sim_fit=min_sim_fit, initial_state=initial_state,
+                            core_start=True)
 
 
 @eqx.filter_jit
