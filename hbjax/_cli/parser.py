@@ -50,6 +50,36 @@ def _add_command(sub, name, *, help, description, example, parents=()):
     )
 
 
+# ----------------------------------------------------------------------------- option blocks
+# Each option that several commands take is defined once here; the help text says what it
+# overwrites or seeds for the command at hand.
+
+CRITERIA = ("prediction", "simulation")
+
+
+def _force(command, help="overwrite --out if it exists"):
+    command.add_argument("--force", action="store_true", help=help)
+
+
+def _seed(command, what="the noise"):
+    command.add_argument("--seed", type=int, default=0, help=f"PRNG seed of {what}")
+
+
+def _design(command):
+    command.add_argument("--design", required=True, help="n=ORDER,m=COEFFS,h_m=AMPLITUDE")
+
+
+def _columns(command):
+    """--input / --output: the recording's columns by header name or 0-based index."""
+    command.add_argument("--input", default=None, help="input column (default: the first)")
+    command.add_argument("--output", default=None, help="output column (default: the second)")
+
+
+def _criterion(command, default, help):
+    command.add_argument("--criterion", choices=CRITERIA, default=default, help=help)
+
+
+
 def build_parser() -> argparse.ArgumentParser:
     # --debug is accepted before or after the command name.
     debug = argparse.ArgumentParser(add_help=False)
@@ -72,9 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
         example="hbjax demo --out demo_output",
     )
     demo.add_argument("--out", default="demo_output", help="folder for the figures and table")
-    demo.add_argument("--force", action="store_true", help="overwrite files in --out")
+    _force(demo, "overwrite files in --out")
     demo.add_argument("--samples", type=int, default=10_000, help="samples per experiment")
-    demo.add_argument("--seed", type=int, default=0, help="PRNG seed of the noise")
+    _seed(demo)
     demo.set_defaults(func=commands.cmd_demo)
 
     signals = _add_command(
@@ -84,10 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
         "PREFIX1.csv, PREFIX2.csv, PREFIX3.csv (one column `v`).",
         example="hbjax signals --design n=2,m=3,h_m=4 --samples 2000 --prefix v",
     )
-    signals.add_argument("--design", required=True, help="n=ORDER,m=COEFFS,h_m=AMPLITUDE")
+    _design(signals)
     signals.add_argument("--samples", type=int, required=True, help="samples per signal")
     signals.add_argument("--prefix", default="v", help="file name prefix (default: v)")
-    signals.add_argument("--force", action="store_true", help="overwrite existing files")
+    _force(signals, "overwrite existing files")
     signals.set_defaults(func=commands.cmd_signals)
 
     simulate = _add_command(
@@ -104,9 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
                           help="input column (header name or index; default: the first)")
     simulate.add_argument("--out", required=True, help="CSV file to write (columns v, y)")
     simulate.add_argument("--noise-std", type=float, default=0.0, help="std of xi(t) (default 0)")
-    simulate.add_argument("--seed", type=int, default=0, help="PRNG seed of the noise")
+    _seed(simulate)
     simulate.add_argument("--u0", type=float, default=0.0, help="initial backlash output u(-1)")
-    simulate.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    _force(simulate)
     simulate.set_defaults(func=commands.cmd_simulate)
 
     identify = _add_command(
@@ -126,14 +156,14 @@ def build_parser() -> argparse.ArgumentParser:
         "column (or the only one).",
         example="hbjax identify giri --design n=2,m=3,h_m=4 y1.csv y2.csv y3.csv --out model.json",
     )
-    giri.add_argument("--design", required=True, help="n=ORDER,m=COEFFS,h_m=AMPLITUDE")
+    _design(giri)
     giri.add_argument("records", nargs=3, metavar="Yk.csv",
                       help="three CSV files: outputs of v1, v2, v3 (in this order)")
     giri.add_argument("--output", default=None, help="output column (header name or index)")
     giri.add_argument("--transient", type=int, default=None,
                       help="samples of y1 to discard (default: settling time of A)")
     giri.add_argument("--out", required=True, help="model file to write (JSON)")
-    giri.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    _force(giri)
     giri.set_defaults(func=commands.cmd_identify_giri)
 
     mc_keys = "\n".join(f"  {k:<15} {v}" for k, v in montecarlo.MONTE_CARLO_KEYS.items())
@@ -154,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--out", required=True, help="JSON file for the study's statistics")
     mc.add_argument("--plot", default=None, help="figure file (.png, .pdf, .svg)")
     mc.add_argument("--no-progress", action="store_true", help="no progress bar")
-    mc.add_argument("--force", action="store_true", help="overwrite --out/--plot if they exist")
+    _force(mc, "overwrite --out/--plot if they exist")
     mc.set_defaults(func=montecarlo.cmd_montecarlo)
 
     diag = _add_command(
@@ -168,20 +198,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     diag.add_argument("--model", required=True, help="nominal model file (a Hammerstein)")
     diag.add_argument("recording", help="CSV recording of the real system")
-    diag.add_argument("--input", default=None, help="input column (default: the first)")
-    diag.add_argument("--output", default=None, help="output column (default: the second)")
+    _columns(diag)
     diag.add_argument("--holdout", type=float, default=0.3,
                       help="final fraction of the record kept out of every fit (default 0.3)")
     diag.add_argument("--effects", default=None,
                       help="comma-separated effect names to consider (default: all)")
-    diag.add_argument("--criterion", choices=("prediction", "simulation"), default=None,
-                      help="fit criterion: one-step prediction (default) or free-run "
-                      "simulation error (slow processes)")
+    _criterion(diag, None, "fit criterion: one-step prediction (default) or free-run "
+               "simulation error (slow processes)")
     diag.add_argument("--json", default=None, help="write the report as JSON")
     diag.add_argument("--plot", default=None, help="write the report figure (.png, .pdf, .svg)")
     diag.add_argument("--save-model", default=None,
                       help="write the extended model of the best finding (model file)")
-    diag.add_argument("--force", action="store_true", help="overwrite output files")
+    _force(diag, "overwrite output files")
     diag.set_defaults(func=commands.cmd_diagnose)
 
     fitp = _add_command(
@@ -206,18 +234,17 @@ def build_parser() -> argparse.ArgumentParser:
     fitp.add_argument("--nb", type=int, default=2, help="order of B (default 2)")
     fitp.add_argument("--m", type=int, default=3,
                       help="coefficients per branch, degree + 1 (default 3)")
-    fitp.add_argument("--input", default=None, help="input column (default: the first)")
-    fitp.add_argument("--output", default=None, help="output column (default: the second)")
+    _columns(fitp)
     fitp.add_argument("--starts", type=int, default=32, help="random starts (default 32)")
-    fitp.add_argument("--seed", type=int, default=0, help="PRNG seed of the starts")
-    fitp.add_argument("--criterion", choices=("prediction", "simulation"), default="simulation",
-                      help="free-run simulation error (default) or one-step prediction error")
+    _seed(fitp, "the starts")
+    _criterion(fitp, "simulation",
+               "free-run simulation error (default) or one-step prediction error")
     fitp.add_argument("--initial-state", choices=("estimate", "zero"), default="estimate",
                       help="estimate the initial state (default) or start from rest at zero")
     fitp.add_argument("--max-steps", type=int, default=None,
                       help="Levenberg-Marquardt steps per start (default: hbjax.fit's)")
     fitp.add_argument("--out", required=True, help="model file to write (JSON)")
-    fitp.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    _force(fitp)
     fitp.set_defaults(func=commands.cmd_identify_fit)
 
     show = _add_command(

@@ -1,6 +1,7 @@
 """The linear block: an ARX equation-error model, paper eqs. (2) and (10)."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -55,3 +56,21 @@ class ARX(eqx.Module):
 
     def __repr__(self) -> str:
         return display.pformat(self)
+
+
+def all_pole(a: Float[Array, " na"], x: Float[Array, "time ..."]) -> Float[Array, "time ..."]:
+    """``x / A(q^-1)``: ``z(t) = x(t) - sum_i a_i z(t-i)`` with zero initial conditions (the
+    free run of the linear block, eq. (2)), along the first axis of ``x`` (trailing axes are
+    independent columns). The one home of this recursion for simulation-error criteria,
+    initial-state estimation and the diagnosis."""
+    na = a.shape[0]
+    if na == 0:
+        return x
+
+    def step(lags, x_t):
+        z_t = x_t
+        for i in range(na):
+            z_t = z_t - a[i] * lags[i]
+        return (z_t,) + lags[:-1], z_t
+
+    return jax.lax.scan(step, (jnp.zeros(x.shape[1:], x.dtype),) * na, x)[1]

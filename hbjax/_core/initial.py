@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._misc import as_float_array, check_finite, same_length, signal
+from .arx import all_pole
 from .model import AbstractModel, Hammerstein
 
 
@@ -82,29 +83,15 @@ def injection(model: Hammerstein, y0, u0, length: int) -> jax.Array:
     return jnp.concatenate([d, jnp.zeros(length - n, d.dtype)])
 
 
-def _ar_filter(a, x):
-    """``z(t) = x(t) - sum_i a_i z(t-i)`` from zero initial conditions: the response of
-    ``1/A`` (columns of the least squares for ``y0``)."""
-    na = a.shape[0]
-
-    def step(lags, x_t):
-        z_t = x_t
-        for i in range(na):
-            z_t = z_t - a[i] * lags[i]
-        return ((z_t,) + lags[:-1]) if na else lags, z_t
-
-    return jax.lax.scan(step, (jnp.zeros((), x.dtype),) * na, x)[1]
-
-
 def _basis(model: Hammerstein, length: int, dtype):
     """Free response to each output lag (``T x na``) and to ``u0`` in the input lags."""
     a = model.arx.a.astype(dtype)
     na = model.arx.na
     zero = jnp.zeros((), dtype)
-    cols = [_ar_filter(a, injection(model, jnp.eye(na, dtype=dtype)[i], zero, length))
+    cols = [all_pole(a, injection(model, jnp.eye(na, dtype=dtype)[i], zero, length))
             for i in range(na)]
     h = jnp.stack(cols, axis=1) if na else jnp.zeros((length, 0), dtype)
-    g = _ar_filter(a, injection(model, jnp.zeros(na, dtype), jnp.ones((), dtype), length))
+    g = all_pole(a, injection(model, jnp.zeros(na, dtype), jnp.ones((), dtype), length))
     return h, g
 
 

@@ -33,13 +33,13 @@ from collections.abc import Mapping
 from typing import ClassVar
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 from scipy.signal import lfilter
 
 from . import residual_tests as rt
+from .._core.arx import all_pole
 from .._core.model import AbstractModel, Hammerstein
 from .._misc import lagged
 
@@ -99,7 +99,7 @@ class MissingInput(AbstractModel):
         w = (sig - self.center) / self.scale
         fir = sum(lagged(w[:, j], k) * self.taps[j, k]
                   for j in range(w.shape[1]) for k in range(self.taps.shape[1]))
-        fir = _all_pole(self.base.arx.a, fir + jnp.zeros_like(y_lin))
+        fir = all_pole(self.base.arx.a, fir + jnp.zeros_like(y_lin))
         return (1 + self.gain) * y_lin + self.offset + y_lin * (w @ self.slip) + fir
 
     def simulate_trajectory(self, v, noise, u0):
@@ -109,19 +109,6 @@ class MissingInput(AbstractModel):
         e = y - self.simulate_trajectory(v, jnp.zeros_like(v), u0)
         a = self.base.arx.a
         return y - (e + sum(a[i] * lagged(e, i + 1) for i in range(a.shape[0])))
-
-
-def _all_pole(a, x):
-    """``x / A(q^-1)`` with zero initial conditions."""
-    if a.shape[0] == 0:
-        return x
-
-    def step(lags, xt):
-        yt = xt - sum(a[i] * lags[i] for i in range(a.shape[0]))
-        return (yt,) + lags[:-1], yt
-
-    zero = jnp.zeros((), x.dtype)
-    return jax.lax.scan(step, (zero,) * a.shape[0], x)[1]
 
 
 def _design(y_nom, w, a, variant):

@@ -25,12 +25,11 @@ import dataclasses
 from typing import ClassVar
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._core import display
-from .._core.arx import ARX
+from .._core.arx import ARX, all_pole
 from .._core.backlash import Backlash
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._misc import lagged
@@ -248,15 +247,7 @@ def _arx_filter(arx: ARX, u, xi):
     ``q^-1``)."""
     a, b = arx.a, arx.b
     bu = sum(b[i] * lagged(u, i + 1) for i in range(b.shape[0])) + xi
-    if a.shape[0] == 0:
-        return bu
-
-    def step(lags, x):
-        y = x - sum(a[i] * lags[i] for i in range(a.shape[0]))
-        return (y,) + lags[:-1], y
-
-    zero = jnp.zeros((), bu.dtype)
-    return jax.lax.scan(step, (zero,) * a.shape[0], bu)[1]
+    return all_pole(a, bu)
 
 
 def term_error(cls, lay: Layout, theta, params, consts, v, y, criterion="prediction", u0=0.0):

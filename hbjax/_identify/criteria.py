@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Bool, Float
 
+from .._core.arx import all_pole
 from .._core.backlash import play_sources, polyval_ascending, power_columns
 from .._core.model import Hammerstein
 from .._core.params import model_from_theta, split_theta
@@ -194,23 +195,6 @@ def inverted_band_rule(low, high, x, lower_is_p1):
     return jnp.where(low > high, rule, -1)
 
 
-def arx_filter(a: Float[Array, " na"], w: Float[Array, "time ..."]) -> Float[Array, "time ..."]:
-    """``A(q^-1) y = w`` with zero initial conditions (free run of the linear block),
-    applied along the first axis of ``w`` (trailing axes are independent columns)."""
-    na = a.shape[0]
-    if na == 0:
-        return w
-
-    def step(lags, w_t):
-        y_t = w_t
-        for i in range(na):
-            y_t = y_t - a[i] * lags[i]
-        return (y_t,) + lags[:-1], y_t
-
-    _, y = jax.lax.scan(step, (jnp.zeros(w.shape[1:], w.dtype),) * na, w)
-    return y
-
-
 def _lag_sum(coef, x):
     """``sum_i coef[i] x(t - 1 - i)`` along the first axis (zero before t = 0)."""
     out = jnp.zeros_like(x)
@@ -305,11 +289,11 @@ def _residual_and_jacobian(theta, x, y, lower_is_p1, na, nb, criterion):
         cols = [jnp.stack(lag_y, axis=1)] if na else []
         jac = jnp.concatenate(cols + [-lag_u, -lag_g], axis=1)
     else:
-        y_sim = arx_filter(a, w)
+        y_sim = all_pole(a, w)
         r = y - y_sim
         lag_s = [lagged(y_sim, i + 1) for i in range(na)]
         cols = [jnp.stack(lag_s, axis=1)] if na else []
-        jac = arx_filter(a, jnp.concatenate(cols + [-lag_u, -lag_g], axis=1))
+        jac = all_pole(a, jnp.concatenate(cols + [-lag_u, -lag_g], axis=1))
     return r, jac, (a, b, grad_x, idx)
 
 
@@ -337,7 +321,7 @@ def _record_residual_jvp(na, nb, criterion, primals, tangents):
         dr = dr + jac @ d_theta
     if not isinstance(d_x, SymbolicZero):
         du = _lag_sum(b, grad_x * d_x[idx])
-        dr = dr - (du if criterion == PREDICTION else arx_filter(a, du))
+        dr = dr - (du if criterion == PREDICTION else all_pole(a, du))
     if not isinstance(d_y, SymbolicZero):
         dr = dr + d_y + (_lag_sum(a, d_y) if criterion == PREDICTION else 0.0)
     return r, dr

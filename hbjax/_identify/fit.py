@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
 
 from .._core import display
 from .._core.arx import ARX
@@ -28,10 +28,10 @@ from .quality import SIM_FIT_FLOOR
 from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
 from .refine import check_floor, refine_traceable
-from .refine_result import RefinementError, describe, extrapolated_ranges, unidentified_names
+from .refine_result import AbstractRefinement, RefinementError
 
 
-class FitResult(eqx.Module):
+class FitResult(AbstractRefinement):
     """What :func:`fit` found.
 
     - `model`: the best local optimum (lowest cost among converged starts), in the
@@ -52,19 +52,6 @@ class FitResult(eqx.Module):
     - `best_index`: which start won.
     """
 
-    model: Hammerstein
-    result: RESULTS
-    stats: dict
-    covariance: Float[Array, "p p"]
-    noise_std: Float[Array, ""]
-    branches_cross: Bool[Array, ""]
-    sim_fit: Float[Array, " records"]
-    sim_fit_pooled: Float[Array, ""]
-    stable: Bool[Array, ""]
-    identified: Bool[Array, " p"]
-    active_ranges: Float[Array, "2 2"]
-    data_range: Float[Array, " 2"]
-    core_finish: Bool[Array, ""]
     starts_costs: Float[Array, " starts"]
     starts_params: Float[Array, "starts p"]
     starts_result: Int[Array, " starts"]
@@ -76,38 +63,12 @@ class FitResult(eqx.Module):
     gauge: str = eqx.field(static=True, default="static_gain")
     initial_state: str = eqx.field(static=True, default="zero")
 
-    @property
-    def message(self) -> str:
-        """The result code in words, with the numbers it rests on."""
-        return describe(self)
-
-    @property
-    def std(self):
-        """Standard errors (``inf`` for parameters the data do not identify)."""
-        return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance), 0.0))
-
-    @property
-    def unidentified(self) -> tuple:
-        """Names of the parameters the data do not identify (``std = inf``)."""
-        return unidentified_names(self.model, self.identified)
-
-    @property
-    def extrapolated(self) -> dict:
-        """Input ranges inside the data where each branch decides no output."""
-        return extrapolated_ranges(self.active_ranges, self.data_range)
-
     def summary(self) -> display.Summary:
         """Estimates, standard errors, 95% intervals, the spread of the local optima over
         the starts, unidentified flags, fit figures and the result message."""
         return display.estimation_summary(self, "Multi-start identification",
                                           covariance=self.covariance,
                                           extra={"start spread": self.spread})
-
-    def __repr__(self) -> str:
-        return display.pformat(self)
-
-    def _repr_html_(self) -> str:
-        return self.summary()._repr_html_()
 
 
 def random_backlash(key, m: int, scale) -> Backlash:

@@ -5,6 +5,8 @@ the quality checks that decide the final result code, and the result code in wor
 assembles its result with the same :func:`summarise` and :func:`finish`.
 """
 
+import abc
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -24,7 +26,60 @@ class RefinementError(ValueError):
     """Raised by :func:`refine` / :func:`fit` (``throw=True``) when the solve failed."""
 
 
-class RefineResult(eqx.Module):
+class AbstractRefinement(eqx.Module):
+    """The fields and reading of a refined model that :class:`RefineResult` and
+    :class:`hbjax.FitResult` share (see :class:`RefineResult` for their meaning): one home,
+    so that a figure added to refinement reaches multi-start fitting too. Subclasses add
+    their own fields and ``summary()``."""
+
+    model: Hammerstein
+    result: RESULTS
+    stats: dict
+    covariance: Float[Array, "p p"]
+    noise_std: Float[Array, ""]
+    branches_cross: Bool[Array, ""]
+    sim_fit: Float[Array, " records"]
+    sim_fit_pooled: Float[Array, ""]
+    stable: Bool[Array, ""]
+    identified: Bool[Array, " p"]
+    active_ranges: Float[Array, "2 2"]
+    data_range: Float[Array, " 2"]
+    core_finish: Bool[Array, ""]
+
+    @property
+    def message(self) -> str:
+        """The result code in words, with the numbers it rests on (concrete results)."""
+        return describe(self)
+
+    @property
+    def std(self) -> Float[Array, " p"]:
+        """Standard errors (square roots of the covariance diagonal; ``inf`` for a
+        parameter the data do not identify)."""
+        return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance, axis1=-2, axis2=-1), 0.0))
+
+    @property
+    def unidentified(self) -> tuple:
+        """Names (:func:`hbjax.param_names`) of the parameters the data do not identify."""
+        return unidentified_names(self.model, self.identified)
+
+    @property
+    def extrapolated(self) -> dict:
+        """``{"P1": [(lo, hi), ...], "P2": [...]}``: input ranges inside the data where a
+        branch never decides the output (its values there are extrapolations)."""
+        return extrapolated_ranges(self.active_ranges, self.data_range)
+
+    @abc.abstractmethod
+    def summary(self) -> display.Summary:
+        """The result's table (text, HTML in Jupyter)."""
+
+    def __repr__(self) -> str:
+        return display.pformat(self)
+
+    def _repr_html_(self) -> str:
+        return self.summary()._repr_html_()
+
+
+class RefineResult(AbstractRefinement):
     """What :func:`refine` found.
 
     - `model`: the refined :class:`hbjax.Hammerstein`, normalised (see :func:`refine`).
@@ -56,55 +111,14 @@ class RefineResult(eqx.Module):
       was fixed and whether the initial state was estimated.
     """
 
-    model: Hammerstein
-    result: RESULTS
-    stats: dict
-    covariance: Float[Array, "p p"]
-    noise_std: Float[Array, ""]
-    branches_cross: Bool[Array, ""]
-    sim_fit: Float[Array, " records"]
-    sim_fit_pooled: Float[Array, ""]
-    stable: Bool[Array, ""]
-    identified: Bool[Array, " p"]
-    active_ranges: Float[Array, "2 2"]
-    data_range: Float[Array, " 2"]
-    core_finish: Bool[Array, ""]
     criterion: str = eqx.field(static=True)
     gauge: str = eqx.field(static=True)
     initial_state: str = eqx.field(static=True, default="zero")
-
-    @property
-    def message(self) -> str:
-        """The result code in words, with the numbers it rests on (concrete results)."""
-        return describe(self)
-
-    @property
-    def std(self) -> Float[Array, " p"]:
-        """Standard errors (square roots of the covariance diagonal; ``inf`` for a
-        parameter the data do not identify)."""
-        return jnp.sqrt(jnp.maximum(jnp.diagonal(self.covariance, axis1=-2, axis2=-1), 0.0))
 
     def summary(self) -> display.Summary:
         """Estimates, standard errors, 95% intervals, unidentified flags, fit figures and the
         result message; a text table that renders as HTML in Jupyter."""
         return display.estimation_summary(self, "Refinement", covariance=self.covariance)
-
-    def __repr__(self) -> str:
-        return display.pformat(self)
-
-    def _repr_html_(self) -> str:
-        return self.summary()._repr_html_()
-
-    @property
-    def unidentified(self) -> tuple:
-        """Names (:func:`hbjax.param_names`) of the parameters the data do not identify."""
-        return unidentified_names(self.model, self.identified)
-
-    @property
-    def extrapolated(self) -> dict:
-        """``{"P1": [(lo, hi), ...], "P2": [...]}``: input ranges inside the data where a
-        branch never decides the output (its values there are extrapolations)."""
-        return extrapolated_ranges(self.active_ranges, self.data_range)
 
 
 def summarise(par, z, ssr, ssr0, jtj, n, result, steps, ok):

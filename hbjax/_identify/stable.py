@@ -30,6 +30,8 @@ Everything here is traceable (jit/vmap/jacfwd) and never raises on values.
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._core.arx import all_pole
+
 INITIAL_STATES = ("zero", "estimate")
 # An unstable start's reflection coefficients are clipped to this modulus.
 K_START = 0.999
@@ -74,11 +76,9 @@ def free_from_a(a: Float[Array, " na"]) -> Float[Array, " na"]:
 def start_response(a: Float[Array, " na"], nb: int, length: int, dtype) -> Array:
     """``H`` (``length x n``, ``n = max(na, nb)``): the free responses of ``1/A`` to unit
     equation errors at ``t = 0..n-1``, which span every past's effect on the free run."""
-    from .criteria import arx_filter  # criteria imports this module
-
     n = max(a.shape[0], nb)
     e = jnp.eye(length, n, dtype=dtype)
-    return arx_filter(a, e)
+    return all_pole(a, e)
 
 
 def remove_start(r: Float[Array, " time"], a, nb: int, criterion: str, mask=None):
