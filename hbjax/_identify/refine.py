@@ -201,7 +201,11 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     the output (the other side of the paper's staircase) are extrapolations and may cross
     the other branch freely; only where a crossing changes the output of the core operator
     ``L = min(P1, P2)``, ``H = max(P1, P2)`` on the data does the solve finish on the core
-    operator from there. The returned model is therefore always exactly
+    operator from there. The core operator is also solved from the start itself and the
+    better of the two converged optima is kept: from a start that is a band at every
+    recorded input (the closed form keeps its branches one at the design's inputs,
+    ``GiriResult.band_shift``) the core solve stays a band and reaches the optimum where the
+    labelled one can end in a poor local optimum. The returned model is therefore always exactly
     :func:`hbjax.simulate`'s model on the data; ``.extrapolated`` lists the branch ranges
     that are extrapolations, ``.branches_cross`` whether the branches meet at a recorded
     input. Orders are static; record lengths are not: an eager call pads each record to
