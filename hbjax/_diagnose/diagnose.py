@@ -32,7 +32,13 @@ from .._core.model import Hammerstein
 from .._core.precision import require_x64
 from .._core.progress import check_progress, progress_bar
 from .._identify.recordings import as_input_output
-from .._misc import as_float_array, check_finite, check_key, check_magnitude, same_length
+from .._misc import (
+    as_float_array,
+    check_finite,
+    check_key,
+    check_magnitude,
+    same_length,
+)
 from .._misc import jsonable as _jsonable
 from . import candidates as cands
 from . import channels as chan
@@ -198,7 +204,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                        u_all, y, v, n_fit, tests)
     table = {c.effect: {k: stats[i + 1].get(k) for k in
                         ("bic", "k", "fit_sim", "fit_pred", "lm_steps", "lm_converged",
-                         "dm_z_simulation", "decision")}
+                         "dbic", "dm_z", "dm_z_simulation", "decision")}
              for i, c in enumerate(candidates)}
     table["nominal"] = {k: stats[0][k] for k in ("bic", "k", "fit_sim", "fit_pred")}
     if fx.OutputSaturation in effects and not any(f.effect == "output_saturation"
