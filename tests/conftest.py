@@ -5,17 +5,38 @@ import numpy as np
 import pytest
 
 
-# The suite compiles hundreds of programs once each in one process: writing them all to the
-# user's persistent compilation cache would only fill ~/.cache (and a crash inside JAX's
-# executable serialisation, seen once in a clean-clone run, would take the whole suite down).
-# The cache itself is tested in fresh subprocesses (tests/test_cold_start.py), which set or
-# clear this variable themselves.
+# The suite compiles thousands of programs in one process: writing them all to the user's
+# persistent compilation cache would only fill ~/.cache. The cache itself is tested in fresh
+# subprocesses (tests/test_cold_start.py), which set or clear this variable themselves.
 os.environ.setdefault("HBJAX_NO_COMPILATION_CACHE", "1")
 
 
 jax.config.update("jax_enable_x64", True)
 
 import hbjax  # noqa: E402
+
+
+def _mapping_count() -> int:
+    try:
+        with open("/proc/self/maps", "rb") as maps:
+            return sum(1 for _ in maps)
+    except OSError:  # not Linux: no per-process mapping limit to watch
+        return 0
+
+
+@pytest.fixture(autouse=True)
+def _free_compiled_programs():
+    """Drop JAX's compiled programs when the process holds many memory mappings.
+
+    Each XLA:CPU executable keeps its machine code in memory mappings of its own; the suite
+    compiles thousands of programs in one process, and without this the process reaches the
+    kernel's per-process limit (``vm.max_map_count``, 65530 by default: measured, the count
+    grew by about 2000 a minute through the diagnosis tests and the crash came at 65215)
+    and the next compilation dies inside LLVM with a segmentation fault. Clearing only past
+    a high-water mark keeps the programs that later tests share."""
+    yield
+    if _mapping_count() > 30000:
+        jax.clear_caches()
 
 
 @pytest.fixture
