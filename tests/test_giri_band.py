@@ -23,8 +23,8 @@ from tests.generators.paper_class import (
 
 
 def _model_dict(model):
-    return dict(a=np.asarray(model.arx.a), b=np.asarray(model.arx.b),
-                c1=np.asarray(model.backlash.c1), c2=np.asarray(model.backlash.c2))
+    return {"a": np.asarray(model.arx.a), "b": np.asarray(model.arx.b),
+            "c1": np.asarray(model.backlash.c1), "c2": np.asarray(model.backlash.c2)}
 
 
 def _ssr(sys, records):

@@ -12,16 +12,15 @@ from jaxtyping import Array, Float, Int
 from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
-from .._misc import as_float_array, check_finite, check_magnitude, is_traced, lagged
 from .._core.cache import ensure_compilation_cache
-from .._core.precision import require_x64
 from .._core.model import Hammerstein
 from .._core.params import gauge_factor
+from .._core.precision import require_x64
+from .._core.signals import GiriDesign
+from .._misc import as_float_array, check_finite, check_magnitude, is_traced, lagged
+from .._results import RESULTS, message, raise_if_failed
 from .giri_band import project_onto_band
 from .linear import arx_regressors
-from .._core.signals import GiriDesign
-from .._results import RESULTS, message, raise_if_failed
-
 
 # Result codes: members of the package's one enumeration (their integer values are what the
 # Monte Carlo study stores per realisation).

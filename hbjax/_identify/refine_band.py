@@ -13,7 +13,6 @@ from .criteria import lower_is_p1
 from .quality import core_consistent
 from .refine_solve import flat_residuals, solve_criterion
 
-
 # Touch equalities the labelled solve may add (one per round) before the core finish.
 MAX_TOUCHES = 3
 
