@@ -348,13 +348,6 @@ def lower_is_p1(model: Hammerstein, recordings):
     return jnp.sum(jnp.where(mask, d, 0.0)) >= 0  # the sign of the mean
 
 
-def band_violated(model: Hammerstein, recordings, lower_is_p1):
-    """Whether the labelled band has ``L > H`` at some recorded input (the branches cross
-    there, so the model is not a hysteresis band over the data)."""
-    d, mask = _branch_gap(model, recordings)
-    return jnp.any(where_valid(mask, jnp.where(lower_is_p1, d, -d) < 0, False))
-
-
 def branches_meet(model: Hammerstein, recordings):
     """Whether ``P2 - P1`` changes sign or vanishes over the recorded inputs (the band
     closes inside the data: a closing hysteresis loop)."""
