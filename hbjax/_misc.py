@@ -183,6 +183,21 @@ def lagged(x, lag: int):
     return jnp.concatenate([jnp.zeros((lag,) + x.shape[1:], x.dtype), x[:-lag]])
 
 
+def lag_sum(coef, x):
+    """``sum_i coef[i] x(t - 1 - i)`` along the first axis of ``x`` (zero before ``t = 0``):
+    a polynomial in ``q^-1`` without its constant term applied to ``x``, e.g.
+    ``B(q^-1) u`` or ``(A(q^-1) - 1) y`` of eq. (2). A coefficient may be a number or a
+    per-sample array of length ``T`` (a coefficient that changes in time); it multiplies
+    every column of a 2-D ``x``. The one home of these sums (criteria, diagnosis kernel,
+    effects)."""
+    out = jnp.zeros_like(x)
+    for i in range(len(coef)):
+        c = jnp.asarray(coef[i])
+        c = c.reshape(c.shape + (1,) * (x.ndim - c.ndim)) if c.ndim else c
+        out = out + c * lagged(x, i + 1)
+    return out
+
+
 def jsonable(x):
     """``x`` with arrays as nested lists, NumPy/JAX scalars as Python numbers, NaN/inf as
     ``None`` (JSON has no non-finite numbers) and dict keys as strings, recursively."""

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._misc import as_float_array, is_traced
+from .._misc import as_float_array, is_traced, lag_sum
 from . import display
 
 
@@ -74,3 +74,11 @@ def all_pole(a: Float[Array, " na"], x: Float[Array, "time ..."]) -> Float[Array
         return (z_t,) + lags[:-1], z_t
 
     return jax.lax.scan(step, (jnp.zeros(x.shape[1:], x.dtype),) * na, x)[1]
+
+
+def equation_error(a, b, y, u):
+    """``A(q^-1) y - B(q^-1) u``, the equation error of eq. (10) with zero initial
+    conditions, along the first axis: the prediction-error residual of the identification
+    criteria and, on the extended model's signals, of the diagnosis (coefficients may be
+    per-sample arrays, see :func:`hbjax._misc.lag_sum`)."""
+    return y + lag_sum(a, y) - lag_sum(b, u)

@@ -73,6 +73,24 @@ def play_sources(low: Float[Array, " time"], high: Float[Array, " time"], force=
     return u, src
 
 
+def source_edges(src):
+    """``(idx, on_high, valid)`` of :func:`play_sources`'s ``src``: the source instant
+    (0 where there is none), whether ``u(t)`` is the upper edge ``high(idx)`` there, and
+    whether ``u(t)`` has a source (else it is still ``u(-1)``). The one decoding of the
+    source indices, shared by the criteria's Jacobian and the diagnosis kernel's gather."""
+    T = src.shape[0]
+    valid = src >= 0
+    on_high = src >= T
+    return jnp.where(valid, jnp.where(on_high, src - T, src), 0), on_high, valid
+
+
+def gather_play(low, high, src, u0=0.0):
+    """The play operator's output as a gather of band edges at the source instants of
+    :func:`play_sources` (differentiable in ``low`` and ``high`` for fixed sources)."""
+    idx, on_high, valid = source_edges(src)
+    return jnp.where(valid, jnp.where(on_high, high[idx], low[idx]), u0)
+
+
 class Backlash(eqx.Module):
     """Hysteresis-backlash flanked by two polynomials, paper eq. (1) and Fig. 2.
 

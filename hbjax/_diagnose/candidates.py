@@ -33,7 +33,7 @@ def fixed_b(lay: Layout, theta) -> int:
     """Index of the ``b`` coefficient held fixed: only ``(A, mu B, P / mu)`` is identifiable
     (paper section 4.1), so one scale is frozen (the largest ``b``) to remove the flat
     direction."""
-    return int(np.argmax(np.abs(np.asarray(lay.get(theta, "b")))))
+    return int(np.argmax(np.abs(np.asarray(lay.base(theta)[1]))))
 
 
 def _columns(lay: Layout, free, levels, theta0) -> list[np.ndarray]:

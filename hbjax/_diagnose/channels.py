@@ -41,7 +41,7 @@ from scipy.signal import lfilter
 from . import residual_tests as rt
 from .._core.arx import all_pole
 from .._core.model import AbstractModel, Hammerstein
-from .._misc import lagged
+from .._misc import lag_sum, lagged
 
 #: FIR lags 0..LAGS of a channel entering as a second input
 LAGS = 3
@@ -107,8 +107,7 @@ class MissingInput(AbstractModel):
 
     def predict_trajectory(self, v, y, u0):
         e = y - self.simulate_trajectory(v, jnp.zeros_like(v), u0)
-        a = self.base.arx.a
-        return y - (e + sum(a[i] * lagged(e, i + 1) for i in range(a.shape[0])))
+        return y - (e + lag_sum(self.base.arx.a, e))
 
 
 def _design(y_nom, w, a, variant):

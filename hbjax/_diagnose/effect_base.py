@@ -29,10 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core import display
-from .._core.arx import ARX, all_pole
-from .._core.backlash import Backlash
+from .._core.arx import ARX, all_pole, equation_error
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
-from .._misc import lagged
+from .._misc import lag_sum
 from .kernel import Layout, iir_fft, play_gather
 
 
@@ -100,8 +99,7 @@ def neutral_ints(delay=0, time=NO_CHANGE):
 
 def base_model(lay: Layout, theta) -> Hammerstein:
     """The base :class:`hbjax.Hammerstein` in an extended parameter vector."""
-    g = lambda s: jnp.asarray(lay.get(theta, s))  # noqa: E731
-    return Hammerstein(Backlash(g("c1"), g("c2")), ARX(g("a"), g("b")))
+    return lay.model(jnp.asarray(theta))
 
 
 class AbstractEffect(AbstractModel):
@@ -165,8 +163,7 @@ class AbstractEffect(AbstractModel):
 
     def predict_trajectory(self, v, y, u0):
         e = y - self._signals(v, jnp.zeros_like(v), u0)
-        a = self.base.arx.a
-        return y - (e + sum(a[i] * lagged(e, i + 1) for i in range(a.shape[0])))
+        return y - (e + lag_sum(self.base.arx.a, e))
 
     # --- what the diagnosis needs ----------------------------------------------------
 
@@ -245,9 +242,7 @@ class AbstractEffect(AbstractModel):
 def _arx_filter(arx: ARX, u, xi):
     """``A y = B u + xi`` with zero initial conditions (no feed-through: ``B`` starts at
     ``q^-1``)."""
-    a, b = arx.a, arx.b
-    bu = sum(b[i] * lagged(u, i + 1) for i in range(b.shape[0])) + xi
-    return all_pole(a, bu)
+    return all_pole(arx.a, lag_sum(arx.b, u) + xi)
 
 
 def term_error(cls, lay: Layout, theta, params, consts, v, y, criterion="prediction", u0=0.0):
@@ -266,12 +261,11 @@ def term_error(cls, lay: Layout, theta, params, consts, v, y, criterion="predict
 
 def effect_error(effect, lay: Layout, theta, consts, v, y, criterion="prediction", u0=0.0):
     """:func:`term_error` of an effect instance (its base is ``theta``)."""
-    a, b = lay.get(theta, "a"), lay.get(theta, "b")
+    a, b, _, _ = lay.base(theta)
     u = play_gather(lay, theta, consts, v, u0)
     u = u + effect.input_term(v, u)
-    bu = sum(b[i] * lagged(u, i + 1) for i in range(lay.nb))
-    y_lin = iir_fft(a, bu)
+    y_lin = iir_fft(a, lag_sum(b, u))
     r = y - effect.output_term(v, u, y_lin)
     if criterion == "simulation":
         return r - y_lin
-    return r - bu + sum(a[i] * lagged(r, i + 1) for i in range(lay.na))
+    return equation_error(a, b, r, u)  # eq. (10)'s equation error of the effect's signals

@@ -30,8 +30,16 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._core.backlash import play_sources, polyval_ascending, power_columns
-from .._misc import lagged
+from .._core.arx import equation_error
+from .._core.backlash import (
+    gather_play,
+    play_sources,
+    polyval_ascending,
+    power_columns,
+    source_edges,
+)
+from .._core.params import flatten_params, model_from_theta, split_theta
+from .._misc import lag_sum, lagged
 
 #: largest extra delay (samples) the extended simulator can represent
 MAX_DELAY = 12
@@ -41,11 +49,21 @@ N_CONSTS = 4
 
 
 class Layout(NamedTuple):
-    """Where each parameter sits in the flat extended parameter vector ``theta``."""
+    """Where each parameter sits in the flat extended parameter vector ``theta``.
+
+    The first :attr:`p_base` entries are the base block: the model's parameter vector
+    ``[a, b, c1, c2]`` of :func:`hbjax.flatten_params`, the vector every estimator works
+    on (:mod:`hbjax._core.params` slices it and builds the model from it). The extension
+    slots follow; neutral values switch each one off."""
 
     na: int
     nb: int
     m: int
+
+    @classmethod
+    def of(cls, model) -> Layout:
+        """The layout of a :class:`hbjax.Hammerstein`'s orders."""
+        return cls(model.arx.na, model.arx.nb, model.backlash.m)
 
     @property
     def p_base(self) -> int:
@@ -75,15 +93,22 @@ class Layout(NamedTuple):
         start, stop = self.slots()[name]
         return theta[start:stop]
 
-    def neutral(self, a, b, c1, c2):
-        """``theta`` of the nominal model: every extension switched off."""
-        theta = jnp.zeros(self.size)
-        for name, val in (("a", a), ("b", b), ("c1", c1), ("c2", c2)):
-            theta = self.put(theta, name, val)
-        theta = self.put(theta, "in_lo", -jnp.inf)
-        theta = self.put(theta, "in_hi", jnp.inf)
-        theta = self.put(theta, "out_lo", -jnp.inf)
-        theta = self.put(theta, "out_hi", jnp.inf)
+    def base(self, theta):
+        """``(a, b, c1, c2)`` of the base block (:func:`hbjax._core.params.split_theta`)."""
+        return split_theta(theta[:self.p_base], self.na, self.nb)
+
+    def model(self, theta):
+        """The base :class:`hbjax.Hammerstein` of an extended vector."""
+        return model_from_theta(theta[:self.p_base], self.na, self.nb)
+
+    def neutral(self, model):
+        """``theta`` of the nominal ``model``: its parameter vector in the base block, every
+        extension switched off."""
+        theta = jnp.zeros(self.size).at[:self.p_base].set(flatten_params(model))
+        for name in ("in_lo", "out_lo"):
+            theta = self.put(theta, name, -jnp.inf)
+        for name in ("in_hi", "out_hi"):
+            theta = self.put(theta, name, jnp.inf)
         return theta
 
     def put(self, theta, name, value):
@@ -104,11 +129,12 @@ def simulate_full(lay: Layout, theta, ints, consts, v, noise, u0):
     """
     na, nb, m = lay.na, lay.nb, lay.m
     g = lambda name: lay.get(theta, name)  # noqa: E731
-    a = jnp.concatenate([g("a"), g("a_extra")])
-    b = jnp.concatenate([g("b"), g("b_extra")])
+    a, b, c1, c2 = lay.base(theta)
+    a = jnp.concatenate([a, g("a_extra")])
+    b = jnp.concatenate([b, g("b_extra")])
     da = jnp.concatenate([g("da"), jnp.zeros(1)])
     db = jnp.concatenate([g("db"), jnp.zeros(1)])
-    c1, c2, dc1, dc2 = g("c1"), g("c2"), g("dc1"), g("dc2")
+    dc1, dc2 = g("dc1"), g("dc2")
     c1x, c2x = g("c1_extra")[0], g("c2_extra")[0]
     in_lo, in_hi = g("in_lo")[0], g("in_hi")[0]
     nd = g("noise_d")
@@ -160,15 +186,11 @@ def output_path(lay: Layout, theta, consts, y_lin, u_used):
 
 def whiten(lay: Layout, theta, ints, y, y_sim):
     """Prediction error ``eps = D(q^-1) A_t(q^-1) (y - y_sim)`` (see module docstring)."""
-    a = jnp.concatenate([lay.get(theta, "a"), lay.get(theta, "a_extra")])
-    da = jnp.concatenate([lay.get(theta, "da"), jnp.zeros(1)])
-    nd = lay.get(theta, "noise_d")
     s = (jnp.arange(y.shape[0]) >= ints[1]).astype(y.dtype)
+    _, a_t, _ = linear_block(lay, theta, s)
     e = y - y_sim
-    w = e
-    for i in range(lay.na + 1):
-        w = w + (a[i] + s * da[i]) * lagged(e, i + 1)
-    return w + nd[0] * lagged(w, 1) + nd[1] * lagged(w, 2)
+    w = e + lag_sum(a_t, e)
+    return w + lag_sum(lay.get(theta, "noise_d"), w)
 
 
 def prediction_error(lay: Layout, theta, ints, consts, v, y):
@@ -191,20 +213,29 @@ def prediction_error(lay: Layout, theta, ints, consts, v, y):
 #   the padded length).
 
 
-def _play_indices(low, high, u0):
-    """For every ``t``, the last instant ``k(t)`` the clamp was active (``-1`` before) and
-    whether at the upper edge: the source indices of :func:`play_sources`."""
-    _, src = play_sources(low, high, u0=u0)
-    hi = src >= low.shape[0]
-    return jnp.where(hi, src - low.shape[0], src), hi
-
 
 def iir_fft(a, num):
-    """``num / A(q^-1)`` with zero initial conditions, by FFT on a padded grid."""
+    """``num / A(q^-1)`` with zero initial conditions along the first axis (columns
+    independent), by FFT on a padded grid: the fits' differentiable form of
+    :func:`hbjax._core.arx.all_pole` (no scan to differentiate through)."""
     T = num.shape[0]
     nfft = 1 << (2 * T - 1).bit_length()
     den = jnp.fft.rfft(jnp.concatenate([jnp.ones(1), a]), nfft)
-    return jnp.fft.irfft(jnp.fft.rfft(num, nfft) / den, nfft)[:T]
+    den = den.reshape(den.shape + (1,) * (num.ndim - 1))
+    return jnp.fft.irfft(jnp.fft.rfft(num, nfft, axis=0) / den, nfft, axis=0)[:T]
+
+
+def linear_block(lay: Layout, theta, s):
+    """``(a, a_t, b_t)`` of the extended linear block: ``a`` with the extra lag, and the
+    per-sample coefficients ``a + s da``, ``b + s db`` (rows: lags; columns: samples)
+    that :func:`hbjax._misc.lag_sum` applies (the base block's ``A``, ``B`` of eq. (10)
+    when the extensions are neutral)."""
+    a, b, _, _ = lay.base(theta)
+    a = jnp.concatenate([a, lay.get(theta, "a_extra")])
+    b = jnp.concatenate([b, lay.get(theta, "b_extra")])
+    da = jnp.concatenate([lay.get(theta, "da"), jnp.zeros(1)])
+    db = jnp.concatenate([lay.get(theta, "db"), jnp.zeros(1)])
+    return a, a[:, None] + da[:, None] * s, b[:, None] + db[:, None] * s
 
 
 def _branches(lay: Layout, theta, ints, consts, v):
@@ -215,17 +246,17 @@ def _branches(lay: Layout, theta, ints, consts, v):
     s = (t >= ints[1]).astype(v.dtype)
     powers = power_columns(v, lay.m)
     extra = (v / consts[0]) ** lay.m
-    p1 = powers @ g("c1") + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
-    p2 = powers @ g("c2") + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
+    _, _, c1, c2 = lay.base(theta)
+    p1 = powers @ c1 + s * (powers @ g("dc1")) + g("c1_extra")[0] * extra
+    p2 = powers @ c2 + s * (powers @ g("dc2")) + g("c2_extra")[0] * extra
     return t, s, powers, extra, p1, p2
 
 
 def _gather(p1, p2, u0):
     """Play-operator output as a gather of branch values at primal-only indices."""
     low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
-    k, hi = _play_indices(jax.lax.stop_gradient(low), jax.lax.stop_gradient(high), u0)
-    kk = jnp.maximum(k, 0)
-    return jnp.where(k < 0, u0, jnp.where(hi, high[kk], low[kk]))
+    _, src = play_sources(jax.lax.stop_gradient(low), jax.lax.stop_gradient(high), u0=u0)
+    return gather_play(low, high, src, u0)
 
 
 def play_gather(lay: Layout, theta, consts, v, u0=0.0):
@@ -243,17 +274,12 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
     transient. ``output_static=False`` drops the output clip and curvature (and the FFT
     they need) for candidates that keep them neutral. ``criterion="simulation"`` returns
     the output error ``y - y_sim = w / A`` instead (no noise model)."""
-    na, nb = lay.na, lay.nb
     g = lambda name: lay.get(theta, name)  # noqa: E731
     t, s, powers, extra, p1, p2 = _branches(lay, theta, ints, consts, v)
     u = jnp.clip(_gather(p1, p2, u0), g("in_lo")[0], g("in_hi")[0])
     d = ints[0]
     u = jnp.where(t >= d, u[jnp.maximum(t - d, 0)], 0.0)
-    a = jnp.concatenate([g("a"), g("a_extra")])
-    b = jnp.concatenate([g("b"), g("b_extra")])
-    da = jnp.concatenate([g("da"), jnp.zeros(1)])
-    db = jnp.concatenate([g("db"), jnp.zeros(1)])
-    bu = sum((b[i] + s * db[i]) * lagged(u, i + 1) for i in range(nb + 1))
+    a, a_t, b_t = linear_block(lay, theta, s)
     du = u - jnp.concatenate([u[:1], u[:-1]])
     tf = t.astype(v.dtype)
     phase = 2 * math.pi * g("sin_freq")[0] * tf
@@ -261,22 +287,15 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
            + g("sin_sin")[0] * jnp.sin(phase) + g("friction")[0] * jnp.tanh(du / consts[3]))
     r = y - add
     if output_static:
-        y_lin = iir_fft(a, bu)
+        y_lin = iir_fft(a, lag_sum(b_t, u))
         z = (y_lin - consts[1]) / consts[2]
         shaped = y_lin + consts[2] * (g("nl2")[0] * z**2 + g("nl3")[0] * z**3) + add
         r = r - (jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) - y_lin - add)
-    w = r - bu + sum((a[i] + s * da[i]) * lagged(r, i + 1) for i in range(na + 1))
+    # the ARX equation error of eq. (10) on the extended model's signals
+    w = equation_error(a_t, b_t, r, u)
     if criterion == "simulation":
         return iir_fft(a, w)
-    nd = g("noise_d")
-    return w + nd[0] * lagged(w, 1) + nd[1] * lagged(w, 2)
-
-
-def _iir_fft_cols(a, num):
-    T = num.shape[0]
-    nfft = 1 << (2 * T - 1).bit_length()
-    den = jnp.fft.rfft(jnp.concatenate([jnp.ones(1), a]), nfft)
-    return jnp.fft.irfft(jnp.fft.rfft(num, nfft, axis=0) / den[:, None], nfft, axis=0)[:T]
+    return w + lag_sum(g("noise_d"), w)
 
 
 def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="prediction"):
@@ -284,17 +303,17 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
     shape ``(T, P)``, by the chain rule written out on whole records (forward-mode
     autodiff of the same expression costs an order of magnitude more on a CPU: dozens
     of small ops per tangent). Columns of the output-static slots are zero."""
-    na, nb, m = lay.na, lay.nb, lay.m
+    na, nb = lay.na, lay.nb
     slots = lay.slots()
     P = lay.size
     g = lambda name: lay.get(theta, name)  # noqa: E731
     T = v.shape[0]
     t, s, powers, extra, p1, p2 = _branches(lay, theta, ints, consts, v)
     low, high = jnp.minimum(p1, p2), jnp.maximum(p1, p2)
-    k, hi = _play_indices(low, high, u0)
-    kk = jnp.maximum(k, 0)
-    valid = (k >= 0).astype(v.dtype)
-    u_raw = jnp.where(k < 0, u0, jnp.where(hi, high[kk], low[kk]))
+    _, src = play_sources(low, high, u0=u0)
+    kk, hi, valid = source_edges(src)
+    valid = valid.astype(v.dtype)
+    u_raw = gather_play(low, high, src, u0)
     # which branch the held value came from
     from1 = jnp.where(hi, p1[kk] >= p2[kk], p1[kk] <= p2[kk]).astype(v.dtype)
     w1, w2 = valid * from1, valid * (1 - from1)
@@ -322,10 +341,8 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
     u = on * u_s[idx]
     Du = on[:, None] * Du[idx]
 
-    b = jnp.concatenate([g("b"), g("b_extra")])
-    db = jnp.concatenate([g("db"), jnp.zeros(1)])
-    bu = sum((b[i] + s * db[i]) * lagged(u, i + 1) for i in range(nb + 1))
-    Dbu = sum((b[i] + s * db[i])[:, None] * lagged(Du, i + 1) for i in range(nb + 1))
+    a, a_t, b_t = linear_block(lay, theta, s)
+    Dbu = lag_sum(b_t, Du)
     for i in range(nb):
         Dbu = Dbu.at[:, slots["b"][0] + i].add(lagged(u, i + 1))
         Dbu = Dbu.at[:, slots["db"][0] + i].add(s * lagged(u, i + 1))
@@ -345,12 +362,10 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
                       ("sin_cos", jnp.cos(phase)), ("sin_sin", jnp.sin(phase)), ("friction", th)):
         Dadd = Dadd.at[:, slots[name][0]].add(col)
 
-    a = jnp.concatenate([g("a"), g("a_extra")])
-    da = jnp.concatenate([g("da"), jnp.zeros(1)])
     r = y - add
-    w = r - bu + sum((a[i] + s * da[i]) * lagged(r, i + 1) for i in range(na + 1))
+    w = equation_error(a_t, b_t, r, u)
     Dr = -Dadd
-    Dw = Dr - Dbu + sum((a[i] + s * da[i])[:, None] * lagged(Dr, i + 1) for i in range(na + 1))
+    Dw = Dr + lag_sum(a_t, Dr) - Dbu
     for i in range(na):
         Dw = Dw.at[:, slots["a"][0] + i].add(lagged(r, i + 1))
         Dw = Dw.at[:, slots["da"][0] + i].add(s * lagged(r, i + 1))
@@ -361,9 +376,8 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
         for i in range(na):
             Dw = Dw.at[:, slots["a"][0] + i].add(-lagged(e, i + 1))
         Dw = Dw.at[:, slots["a_extra"][0]].add(-lagged(e, na + 1))
-        return _iir_fft_cols(a, Dw)
-    nd = g("noise_d")
-    De = Dw + nd[0] * lagged(Dw, 1) + nd[1] * lagged(Dw, 2)
+        return iir_fft(a, Dw)
+    De = Dw + lag_sum(g("noise_d"), Dw)
     De = De.at[:, slots["noise_d"][0]].add(lagged(w, 1))
     De = De.at[:, slots["noise_d"][0] + 1].add(lagged(w, 2))
     return De

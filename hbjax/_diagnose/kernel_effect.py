@@ -32,13 +32,13 @@ NEUTRAL_CONSTS = (1.0, 0.0, 1.0, 1.0)
 
 
 def layout_of(base: Hammerstein) -> Layout:
-    return Layout(base.arx.na, base.arx.nb, base.backlash.m)
+    return Layout.of(base)
 
 
 def base_theta(base: Hammerstein):
     """``(layout, theta)`` of the nominal model with every extension switched off."""
-    lay = layout_of(base)
-    return lay, lay.neutral(base.arx.a, base.arx.b, base.backlash.c1, base.backlash.c2)
+    lay = Layout.of(base)
+    return lay, lay.neutral(base)
 
 
 class AbstractKernelEffect(AbstractEffect):

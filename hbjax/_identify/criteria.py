@@ -13,10 +13,15 @@ from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Bool, Float
 
 from .._core.arx import all_pole
-from .._core.backlash import play_sources, polyval_ascending, power_columns
+from .._core.backlash import (
+    play_sources,
+    polyval_ascending,
+    power_columns,
+    source_edges,
+)
 from .._core.model import Hammerstein
 from .._core.params import model_from_theta, split_theta
-from .._misc import lagged
+from .._misc import lag_sum, lagged
 from .stable import a_from_free, free_from_a, remove_start
 
 PREDICTION = "prediction"
@@ -195,14 +200,6 @@ def inverted_band_rule(low, high, x, lower_is_p1):
     return jnp.where(low > high, rule, -1)
 
 
-def _lag_sum(coef, x):
-    """``sum_i coef[i] x(t - 1 - i)`` along the first axis (zero before t = 0)."""
-    out = jnp.zeros_like(x)
-    for i in range(coef.shape[0]):
-        out = out + coef[i] * lagged(x, i + 1)
-    return out
-
-
 # Band rules (an integer code passed where a boolean ``lower_is_p1`` used to be; ``False``
 # and ``True`` are the two labelled rules).
 LABELLED_P2_LOWER = 0
@@ -234,7 +231,6 @@ def _internal(theta, x, na, nb, band):
     """
     _, _, c1, c2 = split_theta(theta, na, nb)
     m = c1.shape[0]
-    T = x.shape[0]
     band = jnp.asarray(band).astype(jnp.int32)
     core = band == CORE_BAND
     labelled_p1 = band == LABELLED_P1_LOWER
@@ -247,9 +243,7 @@ def _internal(theta, x, na, nb, band):
     u, src = play_sources(low, high, force)
     # Which branch is the lower edge, sample by sample.
     low_is_p1 = jnp.where(core, p1 <= p2, labelled_p1)
-    valid = src >= 0
-    on_high = src >= T
-    idx = jnp.where(valid, jnp.where(on_high, src - T, src), 0)
+    idx, on_high, valid = source_edges(src)
     on_p1 = valid & (on_high != low_is_p1[idx])
     on_p2 = valid & ~on_p1
     xs = x[idx]
@@ -280,11 +274,11 @@ def _internal_signal_jvp(na, nb, primals, tangents):
 def _residual_and_jacobian(theta, x, y, lower_is_p1, na, nb, criterion):
     a, b, _, _ = split_theta(theta, na, nb)
     u, grad_c, grad_x, idx = _internal(theta, x, na, nb, lower_is_p1)
-    w = _lag_sum(b, u)
+    w = lag_sum(b, u)
     lag_u = jnp.stack([lagged(u, i + 1) for i in range(nb)], axis=1)
-    lag_g = _lag_sum(b, grad_c)
+    lag_g = lag_sum(b, grad_c)
     if criterion == PREDICTION:
-        r = y + _lag_sum(a, y) - w
+        r = y + lag_sum(a, y) - w  # the equation error of eq. (10) (_core.arx)
         lag_y = [lagged(y, i + 1) for i in range(na)]
         cols = [jnp.stack(lag_y, axis=1)] if na else []
         jac = jnp.concatenate(cols + [-lag_u, -lag_g], axis=1)
@@ -320,10 +314,10 @@ def _record_residual_jvp(na, nb, criterion, primals, tangents):
     if not isinstance(d_theta, SymbolicZero):
         dr = dr + jac @ d_theta
     if not isinstance(d_x, SymbolicZero):
-        du = _lag_sum(b, grad_x * d_x[idx])
+        du = lag_sum(b, grad_x * d_x[idx])
         dr = dr - (du if criterion == PREDICTION else all_pole(a, du))
     if not isinstance(d_y, SymbolicZero):
-        dr = dr + d_y + (_lag_sum(a, d_y) if criterion == PREDICTION else 0.0)
+        dr = dr + d_y + (lag_sum(a, d_y) if criterion == PREDICTION else 0.0)
     return r, dr
 
 
