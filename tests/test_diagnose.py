@@ -11,7 +11,9 @@ import pytest
 
 import hbjax
 from hbjax._diagnose import effects as fx
+from hbjax._diagnose.effects import layout_of
 from hbjax._diagnose.kernel import fast_jacobian, fast_prediction_error, prediction_error
+from hbjax._identify.criteria import CORE_BAND, record_residual
 
 
 def _reference(c1, c2, a, b, v, xi, *, delay=0, u_clip=(-np.inf, np.inf), y_map=None):
@@ -108,6 +110,21 @@ def test_fast_criterion_equals_exact_prediction_error(effect):
     np.testing.assert_allclose(fast[20:], exact[20:], atol=1e-9)
     # and the exact one is the model's own predictor
     np.testing.assert_allclose(y - hbjax.predict(model, v, y), exact, atol=1e-9)
+
+
+@pytest.mark.parametrize("criterion", ["prediction", "simulation"])
+def test_nominal_model_is_the_zero_effect_case_of_the_identification_criterion(criterion):
+    # one engine: with every extension neutral, the diagnosis's fitting criterion is the
+    # identification's residual (eq. (10)'s equation error / the output error, core band)
+    rec = hbjax.concealed_recording("output_saturation", system=1, n=500, key=jax.random.PRNGKey(6))
+    model, v, y = rec.model, jnp.asarray(rec.v), jnp.asarray(rec.y)
+    lay = layout_of(model)
+    theta = lay.neutral(model)
+    fast = fast_prediction_error(lay, theta, jnp.asarray([0, 2**30]), jnp.ones(4), v, y,
+                                 criterion=criterion)
+    core = record_residual(hbjax.flatten_params(model), v, y, CORE_BAND, model.arx.na,
+                           model.arx.nb, criterion)
+    np.testing.assert_allclose(fast, core, atol=1e-9 * float(jnp.max(jnp.abs(y))))
 
 
 @pytest.mark.parametrize("criterion", ["prediction", "simulation"])

@@ -8,17 +8,17 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from . import candidates as cands
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._core.cache import ensure_compilation_cache
-from .._core.precision import require_x64
-from .._misc import as_float_array, check_finite, same_length
-from .solve import fit_batch
-from .kernel_effect import base_theta
-from .kernel import MAX_DELAY
 from .._core.model import Hammerstein
-from .._identify.linear import arx_regressors
+from .._core.precision import require_x64
+from .._identify.linear import arx_least_squares
+from .._misc import as_float_array, check_finite, same_length
+from . import candidates as cands
+from .kernel import MAX_DELAY
+from .kernel_effect import base_theta
+from .solve import fit_batch
 
 
 def _static_start(v, y, na, nb, m, gap):
@@ -39,11 +39,8 @@ def _static_start(v, y, na, nb, m, gap):
 def _linear_start(v, y, na, nb, m, gap):
     """ARX by least squares on ``v`` with a constant, as a model whose backlash is a narrow
     band ``[v - gap, v + gap]`` around the identity (offset folded into the branches)."""
-    T = len(y)
-    X = np.concatenate([np.asarray(arx_regressors(jnp.asarray(v), jnp.asarray(y), na, nb)),
-                        np.ones((T, 1))], 1)
-    start = max(na, nb)
-    theta = np.linalg.lstsq(X[start:], y[start:], rcond=None)[0]
+    theta = np.asarray(arx_least_squares([(jnp.asarray(v), jnp.asarray(y))], na, nb,
+                                         skip=max(na, nb), constant=True))
     a, b, const = theta[:na], theta[na:na + nb], theta[-1]
     c0 = const / (np.sum(b) or 1.0)
     c1 = np.zeros(m)

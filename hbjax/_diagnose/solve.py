@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from .._identify.lm import levenberg_marquardt
 from .effect_base import base_model, term_error
 from .kernel import Layout, fast_jacobian, fast_prediction_error, play_gather, prediction_error
 
@@ -66,27 +67,11 @@ def fit_batch(lay: Layout, theta0, S, ints, consts, v, y, burn: int, max_steps: 
 
 
 def _least_squares(eps, jac, n: int, max_steps: int):
-    """Levenberg-Marquardt on ``eps(delta)`` from ``delta = 0`` with the Jacobian
-    ``jac(delta)``; returns ``(delta, steps, converged)``."""
-
-    # The solver linearises the residual and applies/transposes that linear map many
-    # times per step; a JVP that materialises the (T, K) Jacobian once makes those
-    # products dense matmuls (cheaper to run and much cheaper to compile than
-    # linearising and transposing the criterion).
-    @jax.custom_jvp
-    def resid(delta):
-        return eps(delta)
-
-    @resid.defjvp
-    def _jvp(primals, tangents):
-        return eps(primals[0]), jac(primals[0]) @ tangents[0]
-
-    def fn(delta, _):
-        return resid(delta)
-
-    sol = optx.least_squares(
-        fn, optx.LevenbergMarquardt(rtol=1e-5, atol=1e-8), jnp.zeros(n),
-        max_steps=max_steps, throw=False)
+    """Levenberg-Marquardt (the package's one set-up, :mod:`hbjax._identify.lm`) on
+    ``eps(delta)`` from ``delta = 0`` with the hand-written Jacobian ``jac(delta)``;
+    returns ``(delta, steps, converged)``."""
+    sol = levenberg_marquardt(lambda d, _: eps(d), jnp.zeros(n), max_steps=max_steps,
+                              rtol=1e-5, atol=1e-8, jac=lambda d, _: jac(d))
     return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
 

@@ -37,13 +37,18 @@ def equilibrated_solve(gram, rhs, *, differentiable: bool = False):
 
 
 def arx_least_squares(records, na: int, nb: int, *, skip: int = 0,
-                      differentiable: bool = False) -> Float[Array, " na+nb"]:
+                      differentiable: bool = False,
+                      constant: bool = False) -> Float[Array, " na+nb"]:
     """``[a; b]`` minimising the equation errors of all records ``(u, y)`` at once (the
     normal equations summed over records, each record's first ``skip`` rows left out);
-    see :func:`equilibrated_solve` for ``differentiable``."""
+    see :func:`equilibrated_solve` for ``differentiable``. ``constant=True`` adds a
+    constant regressor (an offset in the equation) and returns ``[a; b; offset]``."""
     gram, rhs = 0.0, 0.0
     for u, y in records:
-        phi = arx_regressors(u, y, na, nb)[skip:]
+        phi = arx_regressors(u, y, na, nb)
+        if constant:
+            phi = jnp.concatenate([phi, jnp.ones((phi.shape[0], 1), phi.dtype)], axis=1)
+        phi = phi[skip:]
         gram = gram + phi.T @ phi
         rhs = rhs + phi.T @ y[skip:]
     return equilibrated_solve(gram, rhs, differentiable=differentiable)

@@ -14,6 +14,7 @@ from .._core.backlash import Backlash
 from .._core.model import Hammerstein
 from .._core.params import gauge_factor
 from .criteria import PAPER, PREDICTION, STATIC_GAIN, Parametrisation, data_scale, residuals
+from .lm import levenberg_marquardt
 from .sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 
 
@@ -52,14 +53,12 @@ def flat_residuals(z, par, recordings, criterion):
 
 def solve(par: Parametrisation, z0, recordings, criterion, *, max_steps, rtol, atol):
     """Levenberg–Marquardt on the free parameters; never raises."""
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.max_norm,
-                                     linear_solver=lx.Normal(lx.Cholesky()))
 
     def fn(z, args):
         return residuals(z, *args, criterion)
 
-    return optx.least_squares(fn, solver, z0, args=(par, recordings), max_steps=max_steps,
-                              throw=False)
+    return levenberg_marquardt(fn, z0, (par, recordings), max_steps=max_steps, rtol=rtol,
+                               atol=atol, norm=optx.max_norm, normal_cholesky=True)
 
 
 def _at_optimum(sol, par, recordings, criterion):

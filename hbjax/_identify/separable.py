@@ -6,7 +6,6 @@ searched (here by Levenberg–Marquardt on the projected residual, Golub–Perey
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import optimistix as optx
 
 from .._core.arx import ARX
@@ -15,6 +14,7 @@ from .._misc import is_traced, positive_float, positive_int
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .linear import arx_regressors, equilibrated_solve
+from .lm import levenberg_marquardt
 from .criteria import PREDICTION, internal_signal, lower_is_p1
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
@@ -76,10 +76,8 @@ def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: 
     c_p, basis = _constraint_basis(g)
     w0 = basis.T @ (c0 - c_p)
     args = (c_p, basis, recordings, par.scale, par.lower_is_p1, na, nb)
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.max_norm,
-                                     linear_solver=lx.Normal(lx.Cholesky()))
-    sol = optx.least_squares(_projected_residuals, solver, w0, args=args,
-                             max_steps=max_steps, throw=False)
+    sol = levenberg_marquardt(_projected_residuals, w0, args, max_steps=max_steps, rtol=rtol,
+                              atol=atol, norm=optx.max_norm, normal_cholesky=True)
     theta_c = (c_p + basis @ sol.value) / powers
     theta_lin = linear_part(theta_c * powers, recordings, par.scale, par.lower_is_p1, na, nb)
     found = Hammerstein(Backlash(theta_c[:m], theta_c[m:]), ARX(theta_lin[:na], theta_lin[na:]))

@@ -19,11 +19,11 @@ prediction-error cost, the one :func:`hbjax._identify.refine_solve.solve` finds 
 
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import optimistix as optx
 
 from .._misc import lagged
 from .criteria import Parametrisation, _internal, unpack, where_valid
+from .lm import levenberg_marquardt
 
 # Rounds after which sources that still move hand over to the full solve. From a start far
 # from the optimum under an input whose switching instants depend on the band, each round
@@ -107,15 +107,14 @@ def solve_by_statistics(par: Parametrisation, z0, recordings, *, max_steps, rtol
     result, the steps of all rounds, the Gram matrix and the sum of squared prediction errors
     at ``z``, whether the sources still moved after :data:`MAX_ROUNDS` rounds within the step
     budget (then the caller finishes with the full solve), and the sum of squares at ``z0``."""
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.max_norm,
-                                     linear_solver=lx.Normal(lx.Cholesky()))
     gram0, codes0, ssr0 = statistics(z0, par, recordings)
     ok = optx.RESULTS.successful
 
     def round_(state):
         z, gram, _, codes, rounds, steps, _, _ = state
-        sol = optx.least_squares(_reduced_residual, solver, z, args=(par, gram_factor(gram)),
-                                 max_steps=max_steps, throw=False)
+        sol = levenberg_marquardt(_reduced_residual, z, (par, gram_factor(gram)),
+                                  max_steps=max_steps, rtol=rtol, atol=atol, norm=optx.max_norm,
+                                  normal_cholesky=True)
         new_gram, new_codes, ssr = statistics(sol.value, par, recordings)
         settled = jnp.all(new_codes == codes)
         return (sol.value, new_gram, ssr, new_codes, rounds + 1,
