@@ -61,6 +61,8 @@ import hbjax  # noqa: E402
 
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _machine import describe, write_section  # noqa: E402
 from tests.generators.paper_class import (  # noqa: E402
     INPUT_KINDS,
     predict_numpy,
@@ -305,6 +307,45 @@ def report(mode, runs, args, elapsed):
     return "\n".join(lines)
 
 
+def results_markdown(mode, runs, args, elapsed, load_before, load_after):
+    """The section of RESULTS.md: machine, load, and the counts per class, per noise level
+    and per ``m`` (a failure is any category other than ``ok``)."""
+    head = "| | runs | " + " | ".join(CATEGORIES) + " |\n|---|---|" + "---|" * len(CATEGORIES)
+
+    def row(name, sel):
+        counts = collections.Counter(r["category"] for r in sel)
+        return f"| {name} | {len(sel)} | " + " | ".join(str(counts.get(c, 0)) for c in CATEGORIES) + " |"
+
+    rows = [row(f"noise {lv:g} x range", [r for r in runs if r["level"] == lv]) for lv in args.noise_levels]
+    rows += [row(f"m = {m}", [r for r in runs if r["m"] == m]) for m in sorted({r["m"] for r in runs})]
+    rows += [row(f"na = {n}", [r for r in runs if r["na"] == n]) for n in sorted({r["na"] for r in runs})]
+    rows.append(row("**all**", runs))
+    failing = [r for r in runs if r["category"] != "ok"]
+    n_sys = len({r["system"] for r in runs})
+    lines = [
+        f"Command: `python benchmarks/identify_random.py {' '.join(args.argv)}` "
+        f"(mode {mode}; {n_sys} systems from `tests/generators/paper_class.py`, "
+        f"{args.draws} noise draws per system and level, T = {args.T} samples per record; "
+        f"{len(runs)} runs in {elapsed:.0f} s).",
+        "",
+        f"Machine: {describe()}; load average {load_before[0]:.2f} at the start, "
+        f"{load_after[0]:.2f} at the end (shared 2-core machine: the time is inflated).",
+        "",
+        head, *rows, "",
+        f"Failing runs: {len(failing)} of {len(runs)}"
+        + (":" if failing else "."),
+    ]
+    for r in failing[:30]:
+        lines.append(f"- system {r['system']} (na = {r['na']}, m = {r['m']}), noise {r['level']:g}, "
+                     f"draw {r['draw']}: {r['category']}: {str(r.get('message'))[:200]}")
+    if mode == "paper":
+        d = [r["distance"] for r in runs if "distance" in r]
+        if d:
+            lines += ["", f"Median prediction distance of the refined models from the truth: "
+                          f"{np.median(d):.3g} sigma^2 (an efficient estimate: about p = na + nb + 2m - 1)."]
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--systems", type=int, default=12)
@@ -323,6 +364,8 @@ def main(argv=None):
     ap.add_argument("--top", type=int, default=10, help="failure messages to print")
     ap.add_argument("--json", default=None, metavar="PATH")
     ap.add_argument("--verbose", action="store_true")
+    ap.add_argument("--write-results", action="store_true",
+                    help="write this mode's section of benchmarks/RESULTS.md")
     args = ap.parse_args(argv)
     if args.fit and args.closing:
         ap.error("--fit and --closing are exclusive")
@@ -337,9 +380,15 @@ def main(argv=None):
         # may fit below 97 % (measured 93.6 % with a prediction distance of p), and a
         # prbs_levels record with few levels does not determine an m-coefficient branch
         args.fit_threshold = 99.0 if args.closing else 90.0
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    load_before = os.getloadavg()
     mode, runs, elapsed = study(args)
     text = report(mode, runs, args, elapsed)
     print(text)
+    if args.write_results:
+        title = {"paper": "paper mode", "fit": "fit mode", "closing": "closing-loop mode"}[mode]
+        write_section(f"Identification on random systems, {title} (benchmarks/identify_random.py)",
+                      results_markdown(mode, runs, args, elapsed, load_before, os.getloadavg()))
     if args.json:
         summary = dict(
             args=vars(args), mode=mode, elapsed_s=elapsed,
