@@ -36,6 +36,10 @@ Examples::
     python benchmarks/identify_random.py --quick --systems 12 --draws 8
     python benchmarks/identify_random.py --fit --systems 8 --draws 2 --json fit.json
     python benchmarks/identify_random.py --closing --systems 8 --draws 2
+    python benchmarks/identify_random.py --crlb --systems 10 --draws 100   # var/CRLB, bias
+    python benchmarks/identify_random.py --readme --seeds 200             # README quickstart
+
+``--crlb`` and ``--readme`` are described in ``benchmarks/_identify_modes.py``.
 """
 
 from __future__ import annotations
@@ -346,6 +350,33 @@ def results_markdown(mode, runs, args, elapsed, load_before, load_after):
     return "\n".join(lines)
 
 
+def efficiency_modes(args, argv):
+    """``--crlb`` and ``--readme`` (:mod:`_identify_modes`), each writing its own section."""
+    import _identify_modes as modes
+
+    if args.noise_levels is None:
+        args.noise_levels = [0.01]
+    if args.T is None:
+        args.T = 6000
+    load_before = os.getloadavg()
+    command = f"`python benchmarks/identify_random.py {' '.join(sys.argv[1:] if argv is None else argv)}`"
+    if args.crlb:
+        rows, elapsed = modes.crlb_study(args)
+        body = modes.crlb_markdown(rows, args)
+        title = "Efficiency on random paper-class systems (benchmarks/identify_random.py --crlb)"
+    else:
+        runs, elapsed = modes.readme_study(args)
+        body = modes.readme_markdown(runs)
+        title = "README quickstart over seeds (benchmarks/identify_random.py --readme)"
+    body = (f"Command: {command} ({elapsed:.0f} s). Machine: {describe()}; load average "
+            f"{load_before[0]:.2f} at the start, {os.getloadavg()[0]:.2f} at the end (shared "
+            f"2-core machine).\n\n{body}")
+    print(body)
+    if args.write_results:
+        write_section(title, body)
+    return 0
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--systems", type=int, default=12)
@@ -366,7 +397,13 @@ def main(argv=None):
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--write-results", action="store_true",
                     help="write this mode's section of benchmarks/RESULTS.md")
+    ap.add_argument("--crlb", action="store_true",
+                    help="efficiency: var/CRLB and bias per parameter (benchmarks/_identify_modes.py)")
+    ap.add_argument("--readme", action="store_true", help="the README quickstart over --seeds seeds")
+    ap.add_argument("--seeds", type=int, default=200, help="--readme: seeds 0..S-1")
     args = ap.parse_args(argv)
+    if args.crlb or args.readme:
+        return efficiency_modes(args, argv)
     if args.fit and args.closing:
         ap.error("--fit and --closing are exclusive")
     if args.noise_levels is None:

@@ -1,0 +1,153 @@
+"""Two modes of ``benchmarks/identify_random.py`` beside the failure counts:
+
+- ``--crlb``: efficiency on random paper-class systems. For each system, ``--draws``
+  noise realisations of the paper's three experiments, ``identify_giri`` then ``refine``;
+  per normalised parameter the Monte Carlo variance over the Cramér–Rao bound
+  (``hbjax.crlb`` at the true system, on the first realisation's records) and the bias in
+  standard deviations. The targets (issue 15) are ``var/CRLB <= 1.2`` and
+  ``|bias| <= 0.1 sd``, each with a Monte Carlo allowance stated in the table: with ``R``
+  realisations the sample variance over the true one is ``chi2_{R-1}/(R-1)`` and the mean
+  error is off by ``sd/sqrt(R)``, so a system passes when, for every parameter,
+  ``var/CRLB <= 1.2 chi2_{R-1}(1 - 0.01/p)/(R-1)`` and
+  ``|bias|/sd <= 0.1 + z(1 - 0.005/p)/sqrt(R)`` (Bonferroni over the ``p`` parameters, a
+  1 % false alarm per system).
+- ``--readme``: the README quickstart (``N = 5000``, noise 0.3) over seeds ``0..S-1``; a
+  failure is an exception, a result other than success, or a prediction cost above the
+  true system's by more than ``sigma^2 chi2_p(0.99)`` (a local minimum).
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import numpy as np
+from scipy.stats import chi2, norm
+
+import hbjax
+from tests.generators.paper_class import predict_numpy, random_paper_system, simulate_numpy, to_hbjax
+
+
+def _model_dict(model):
+    return dict(a=np.asarray(model.arx.a, float), b=np.asarray(model.arx.b, float),
+                c1=np.asarray(model.backlash.c1, float), c2=np.asarray(model.backlash.c2, float))
+
+
+def _ssr(sys, records):
+    return float(sum(np.sum((np.asarray(y) - predict_numpy(sys, np.asarray(v), np.asarray(y))) ** 2)
+                     for v, y in records))
+
+
+def _experiments(sys, rng, level, T):
+    design = hbjax.GiriDesign(n=sys["n"], m=sys["m"], h_m=sys["h_m"])
+    inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input, design.staircase_input)]
+    free = [simulate_numpy(sys, v)[0] for v in inputs]
+    sigma = level * float(np.ptp(np.concatenate(free)))
+    ys = [simulate_numpy(sys, v, sigma * rng.normal(size=T))[0] for v in inputs]
+    return design, list(zip(inputs, ys)), sigma
+
+
+def crlb_study(args):
+    """Returns ``(rows, elapsed)``: one row per system with the worst parameter's ratios."""
+    rng = np.random.default_rng(args.seed)
+    rows, t0 = [], time.time()
+    level = args.noise_levels[0]
+    for i in range(args.systems):
+        sys_rng = np.random.default_rng(rng.integers(2**63))
+        sys = random_paper_system(sys_rng)
+        truth = hbjax.normalise(to_hbjax(sys), sys["h_m"])
+        theta0 = np.asarray(hbjax.flatten_params(truth))
+        errors, failed, bound = [], 0, None
+        for d in range(args.draws):
+            design, records, sigma = _experiments(sys, np.random.default_rng(sys_rng.integers(2**63)),
+                                                  level, args.T)
+            if bound is None:
+                bound = np.diag(np.asarray(hbjax.crlb(truth, records, noise_std=sigma, h_m=sys["h_m"]).covariance))
+            try:
+                giri = hbjax.identify_giri(design, *[y for _, y in records], throw=False)
+                ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
+                ok = ref.message == "success"
+            except Exception:  # noqa: BLE001  (counted, never hidden)
+                ok = False
+            if not ok:
+                failed += 1
+                continue
+            errors.append(np.asarray(hbjax.flatten_params(ref.model)) - theta0)
+        errors = np.array(errors)
+        R = errors.shape[0]
+        free = bound > 1e-12 * np.max(bound)  # the constrained coefficient has no variance
+        p = int(free.sum())
+        var = errors.var(axis=0, ddof=1)
+        ratio = var[free] / bound[free]
+        bias = np.abs(errors.mean(axis=0)[free]) / np.sqrt(var[free])
+        var_allow = 1.2 * chi2.ppf(1 - 0.01 / p, R - 1) / (R - 1)
+        bias_allow = 0.1 + norm.ppf(1 - 0.005 / p) / np.sqrt(R)
+        rows.append(dict(system=i, na=sys["na"], m=sys["m"], p=p, R=R, failed=failed, sigma=sigma,
+                         max_ratio=float(ratio.max()), median_ratio=float(np.median(ratio)),
+                         max_bias=float(bias.max()), var_allow=float(var_allow),
+                         bias_allow=float(bias_allow),
+                         ok=bool(ratio.max() <= var_allow and bias.max() <= bias_allow and failed == 0)))
+        print(f"system {i + 1}/{args.systems}: {rows[-1]} ({time.time() - t0:.0f} s)", flush=True)
+    return rows, time.time() - t0
+
+
+def crlb_markdown(rows, args):
+    lines = [
+        f"Noise std {args.noise_levels[0]:g} x the output range, T = {args.T} samples per "
+        f"experiment, {args.draws} realisations per system (`identify_giri` then `refine`, "
+        f"paper gauge); bound: `hbjax.crlb` at the true system. Allowances: "
+        f"`var/CRLB <= 1.2 chi2_(R-1)(1 - 0.01/p)/(R-1)`, `|bias|/sd <= 0.1 + z(1 - 0.005/p)/sqrt(R)`.",
+        "",
+        "| system | na | m | p | R | failed | max var/CRLB | median var/CRLB | allowance | max abs(bias)/sd | allowance | pass |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['system']} | {r['na']} | {r['m']} | {r['p']} | {r['R']} | {r['failed']} | "
+                     f"{r['max_ratio']:.3f} | {r['median_ratio']:.3f} | {r['var_allow']:.3f} | "
+                     f"{r['max_bias']:.3f} | {r['bias_allow']:.3f} | {'yes' if r['ok'] else '**no**'} |")
+    lines += ["", f"Systems passing: {sum(r['ok'] for r in rows)} of {len(rows)}."]
+    return "\n".join(lines)
+
+
+QUICKSTART = dict(c1=[-1.0, 0.9, 0.01], c2=[1.0, 0.9, -0.01], a=[-1.2, 0.5], b=[1.0, 0.5])
+
+
+def readme_study(args):
+    """The README quickstart over seeds ``0..args.seeds-1``: ``(runs, elapsed)``."""
+    model = hbjax.Hammerstein(hbjax.Backlash(c1=QUICKSTART["c1"], c2=QUICKSTART["c2"]),
+                              hbjax.ARX(a=QUICKSTART["a"], b=QUICKSTART["b"]))
+    design, N = hbjax.GiriDesign(n=2, m=3, h_m=4.0), 5_000
+    inputs = [design.constant_input(N), design.binary_input(N), design.staircase_input(N)]
+    truth = {k: np.asarray(v, float) for k, v in QUICKSTART.items()}
+    p, runs, t0 = 2 + 2 + 2 * 3 - 1, [], time.time()
+    for seed in range(args.seeds):
+        keys = jax.random.split(jax.random.PRNGKey(seed), 3)
+        ys = [hbjax.simulate(model, v, 0.3 * jax.random.normal(k, (N,))) for v, k in zip(inputs, keys)]
+        records = list(zip(inputs, ys))
+        run = dict(seed=seed)
+        try:
+            result = hbjax.identify_giri(design, *ys)
+            refined = hbjax.refine(result.model, records, h_m=design.h_m)
+            excess = (_ssr(_model_dict(refined.model), records) - _ssr(truth, records)) / 0.3**2
+            run.update(excess=excess, ok=excess <= chi2.ppf(0.99, p),
+                       message=None if excess <= chi2.ppf(0.99, p) else f"local minimum (excess {excess:.3g} sigma^2)")
+        except Exception as e:  # noqa: BLE001  (a failure of the quickstart: counted)
+            run.update(ok=False, message=f"{type(e).__name__}: {str(e)[:200]}")
+        runs.append(run)
+        if (seed + 1) % 20 == 0:
+            print(f"seeds 0-{seed}: {sum(not r['ok'] for r in runs)} failures ({time.time() - t0:.0f} s)", flush=True)
+    return runs, time.time() - t0
+
+
+def readme_markdown(runs):
+    bad = [r for r in runs if not r["ok"]]
+    ex = [r["excess"] for r in runs if "excess" in r]
+    lines = [f"The README quickstart (N = 5000 per experiment, noise std 0.3, `identify_giri` then "
+             f"`refine(..., h_m=4)` with `throw=True`) over seeds 0-{len(runs) - 1}: "
+             f"**{len(bad)} failures of {len(runs)}** (an exception, or a prediction cost above "
+             f"the true system's by more than `sigma^2 chi2_9(0.99)` = {chi2.ppf(0.99, 9):.1f} sigma^2).",
+             "", f"Cost of the refined model minus the true system's, in sigma^2: median "
+             f"{np.median(ex):.2f}, max {np.max(ex):.2f} (a global optimum is below 0)." if ex else ""]
+    for r in bad[:20]:
+        lines.append(f"- seed {r['seed']}: {r['message']}")
+    return "\n".join(lines)
