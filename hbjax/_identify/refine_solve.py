@@ -4,6 +4,7 @@ statistics of :mod:`hbjax._identify.sufficient` where that is exact, else on the
 residual) and ``(SSR, SSR at the start, J^T J)`` at its optimum.
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -105,6 +106,11 @@ def _solve_prediction(par, z0, recordings, **options):
     return z, result, steps, ssr, ssr0, jtj
 
 
+# A nested jit: refinement calls this up to six times with the same shapes (first solve,
+# reorientation, touches, core finish, core solve from the start); JAX traces and lowers it
+# once per signature instead of once per call, which is most of a cached cold start
+# (refine: 3.9 -> 2.7 s of tracing and lowering, benchmarks/cold_start.py).
+@eqx.filter_jit
 def solve_criterion(par, z0, recordings, criterion, statistics, options):
     """One Levenberg–Marquardt solve under ``par``'s band rule:
     ``(z, result, steps, SSR, SSR0, J^T J)``."""
