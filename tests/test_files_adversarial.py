@@ -274,7 +274,7 @@ def _cpu_seconds(pid: int) -> float:
 def test_ctrl_c_during_a_study_exits_130_cleanly(tmp_path):
     config = tmp_path / "c.json"
     config.write_text('{"noise_std": 0.5, "lengths": [2000], "realisations": 200000}')
-    outcomes = []
+    outcomes, messages = [], []
     for cpu in (3.0, 6.0, 9.0):  # interrupt at different stages: set-up, compiling, running
         proc = subprocess.Popen([sys.executable, "-m", "hbjax", "montecarlo", "--config", config,
                                  "--out", tmp_path / "s.json"], stderr=subprocess.PIPE,
@@ -285,7 +285,8 @@ def test_ctrl_c_during_a_study_exits_130_cleanly(tmp_path):
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=300)
         outcomes.append((proc.returncode, b"interrupted" in err))
-    assert outcomes == [(130, True)] * 3
+        messages.append(err.decode(errors="replace")[-400:])
+    assert outcomes == [(130, True)] * 3, messages
     assert not (tmp_path / "s.json").exists()
 
 

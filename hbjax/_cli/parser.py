@@ -295,6 +295,26 @@ def _exit_interrupted(prog: str) -> None:
     os._exit(130)
 
 
+def _watch_interrupts():
+    """Record every Ctrl-C, then raise ``KeyboardInterrupt`` as Python's own handler does.
+
+    Returns the flag, or ``None`` where handlers cannot be installed (not the main thread)."""
+    import signal
+    import threading
+
+    flag = threading.Event()
+
+    def on_interrupt(signum, frame):
+        flag.set()
+        raise KeyboardInterrupt
+
+    try:
+        signal.signal(signal.SIGINT, on_interrupt)
+    except ValueError:
+        return None
+    return flag
+
+
 def main(argv=None) -> int:
     # The command-line tool is a program of its own: it, not the library, switches on float64.
     import jax
@@ -303,6 +323,7 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = getattr(args, "_prog", f"hbjax {args.command}")
+    interrupted = _watch_interrupts() if argv is None else None
     try:
         return args.func(args)
     except KeyboardInterrupt:
@@ -311,6 +332,10 @@ def main(argv=None) -> int:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # one clear line unless --debug
+        if interrupted is not None and interrupted.is_set():
+            # The Ctrl-C reached Python inside a callback from compiled code, which handed it
+            # on as another exception type: it is still an interruption, not an error.
+            _exit_interrupted(prog)
         if getattr(args, "debug", False):
             raise
         message = " ".join(str(exc).split()) or type(exc).__name__
