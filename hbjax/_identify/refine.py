@@ -22,7 +22,7 @@ from .._results import RESULTS, raise_if_failed
 from .criteria import lower_is_p1, sample_count
 from .quality import SIM_FIT_FLOOR
 from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
-from .refine_band import best_of_core_start, touch_where_decisive
+from .refine_band import best_of_core_start, labelled_from
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
 from .stable import check_initial_state
@@ -74,15 +74,12 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
     z0 = par.free(flatten_params(start))
     options = dict(max_steps=max_steps, rtol=rtol, atol=atol)
-    z, result, steps, ssr, ssr0, jtj = solve_criterion(par, z0, recordings, criterion, statistics,
-                                              options)
-    par, z, result, steps, ssr, jtj = touch_where_decisive(par, z, result, steps, ssr, jtj,
-                                                            recordings, criterion,
-                                                            statistics, options)
     if core_start:
-        par, z, result, steps, ssr, jtj = best_of_core_start(
-            par, z0, (par, z, result, steps, ssr, jtj), recordings, criterion, statistics,
-            options)
+        par, z, result, steps, ssr, ssr0, jtj = best_of_core_start(
+            par, z0, recordings, criterion, statistics, options)
+    else:
+        par, z, result, steps, ssr, ssr0, jtj = labelled_from(par, z0, recordings, criterion,
+                                                              statistics, options)
     if stable:
         # Back to the affine parameters (a itself) for the covariance and the checks.
         theta = par.theta(z)
