@@ -339,9 +339,15 @@ def results_markdown(mode, runs, args, elapsed, load_before, load_after):
         f"Failing runs: {len(failing)} of {len(runs)}"
         + (":" if failing else "."),
     ]
-    for r in failing[:30]:
-        lines.append(f"- system {r['system']} (na = {r['na']}, m = {r['m']}), noise {r['level']:g}, "
-                     f"draw {r['draw']}: {r['category']}: {str(r.get('message'))[:200]}")
+    groups = collections.defaultdict(list)  # one line per system and kind of failure
+    for r in failing:
+        groups[(r["system"], r["category"], short_message(r.get("message") or ""))].append(r)
+    for (system, category, _), rs in groups.items():
+        r = rs[0]
+        where = ", ".join(f"noise {x['level']:g} draw {x['draw']}" for x in rs[:4])
+        more = f" and {len(rs) - 4} more" if len(rs) > 4 else ""
+        lines.append(f"- system {system} (na = {r['na']}, m = {r['m']}), {len(rs)} x {category} "
+                     f"({where}{more}): {str(r.get('message'))[:200]}")
     if mode == "paper":
         d = [r["distance"] for r in runs if "distance" in r]
         if d:
