@@ -118,3 +118,22 @@ def test_weak_v2_record_does_not_refuse_a_valid_system():
         assert ref.result == hbjax.RESULTS.successful and excess <= chi2.ppf(0.99, p), (
             ref.message, excess)
     assert refused == []
+
+
+def test_refine_reaches_the_optimum_where_the_core_solve_crawls_along_a_kink():
+    # m = 5 at 5 % noise: the optimum has the extrapolated P1 touching P2 at the outermost
+    # falling level (a kink of the core cost). The core solve from the closed form crawled
+    # along it (1024 steps, still 6 sigma^2 short of the optimum) and the labelled pipeline
+    # from the closed form settled 1.7e5 sigma^2 above the truth (poor_fit); from where the
+    # core solve stopped, the labelled pipeline adds the touch and converges.
+    sys, sys_rng = _study_system(2, 27)
+    assert sys["na"] == 1 and sys["m"] == 5
+    for _ in range(11):  # the benchmark's run 5 at the second noise level (0.05)
+        sys_rng.integers(2**63)
+    rng = np.random.default_rng(sys_rng.integers(2**63))
+    design, records, sigma = _experiments(sys, rng, 0.05, T=6000)
+    giri = hbjax.identify_giri(design, *[y for _, y in records])
+    ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
+    excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
+    assert ref.result == hbjax.RESULTS.successful, ref.message
+    assert excess <= chi2.ppf(0.99, 1 + 1 + 2 * 5 - 1), excess
