@@ -137,3 +137,26 @@ def test_refine_reaches_the_optimum_where_the_core_solve_crawls_along_a_kink():
     excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
     assert ref.result == hbjax.RESULTS.successful, ref.message
     assert excess <= chi2.ppf(0.99, 1 + 1 + 2 * 5 - 1), excess
+
+
+def test_crlb_of_a_wide_design_with_high_degree_branches_is_finite():
+    # h_m = 6.2, m = 5: raw powers of v span decades, and the rank test on the raw Fisher
+    # information called the bound infinite; equilibrated, every parameter is identified
+    # and the bound agrees with the inverse of the equilibrated information.
+    rng = np.random.default_rng(11)
+    for _ in range(2):
+        rng.integers(2**63)
+    sys_rng = np.random.default_rng(rng.integers(2**63))
+    sys = random_paper_system(sys_rng)
+    assert sys["m"] == 5 and sys["h_m"] > 5
+    design, records, sigma = _experiments(sys, np.random.default_rng(sys_rng.integers(2**63)), 0.01)
+    truth = hbjax.normalise(to_hbjax(sys), sys["h_m"])
+    bound = hbjax.crlb(truth, records, noise_std=sigma, h_m=sys["h_m"])
+    cov = np.asarray(bound.covariance)
+    assert np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0)
+    # the bound is the constrained inverse: F cov F = F on the allowed directions
+    f = np.asarray(bound.fisher)
+    g = np.asarray(bound.constraint)
+    u = np.linalg.svd(g[None, :])[2][1:].T
+    np.testing.assert_allclose(u.T @ f @ cov @ f @ u, u.T @ f @ u, rtol=1e-6,
+                               atol=1e-9 * np.abs(u.T @ f @ u).max())
