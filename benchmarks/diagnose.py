@@ -73,8 +73,12 @@ def jacobian_vs_jacfwd():
     import hbjax
     from hbjax._diagnose.kernel import fast_jacobian, fast_prediction_error
 
-    rec = hbjax.concealed_recording("coulomb_friction", system=0, n=N, key=jax.random.PRNGKey(3))
+    # a kernel effect's true model with the kernel's output-side friction slot moved off
+    # neutral (the registered coulomb_friction acts inside the recursion, outside the kernel)
+    rec = hbjax.concealed_recording("output_saturation", system=0, n=N, key=jax.random.PRNGKey(3))
     lay, theta, ints, consts = rec.true_model.parts()
+    consts = consts.at[3].set(0.1)
+    theta = lay.put(theta, "friction", 0.3)
     theta = lay.put(theta, "sin_cos", 0.2)
     theta = lay.put(theta, "noise_d", jnp.asarray([0.1, -0.05]))
     v, y = jnp.asarray(rec.v), jnp.asarray(rec.y)
