@@ -20,6 +20,7 @@ import textwrap
 import time
 
 import jax
+jax.config.update("jax_enable_x64", True)  # the estimators and the peers compare in float64
 import numpy as np
 
 import hbjax

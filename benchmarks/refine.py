@@ -20,6 +20,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(__file__))
 
 import jax  # noqa: E402
+jax.config.update("jax_enable_x64", True)  # the estimators and the peers compare in float64
 import jax.numpy as jnp  # noqa: E402
 import numba  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402

@@ -9,6 +9,7 @@ import os
 import time
 
 import jax
+jax.config.update("jax_enable_x64", True)  # the estimators and the peers compare in float64
 import numba
 import numpy as np
 
