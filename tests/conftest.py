@@ -1,14 +1,28 @@
 import os
+import shutil
+import tempfile
 
 import jax
 import numpy as np
 import pytest
 
 
-# The suite compiles thousands of programs in one process: writing them all to the user's
-# persistent compilation cache would only fill ~/.cache. The cache itself is tested in fresh
-# subprocesses (tests/test_cold_start.py), which set or clear this variable themselves.
-os.environ.setdefault("HBJAX_NO_COMPILATION_CACHE", "1")
+# One persistent compilation cache for the whole run, in a temporary directory: the xdist
+# workers and the subprocesses (notebooks, command line, demo, determinism jobs) compile many
+# of the same programs, and the second compilation becomes a file read. Not the user's
+# ~/.cache, which thousands of test programs would only fill. The first process (pytest's
+# controller) creates it and removes it at the end; the workers and subprocesses inherit it
+# through the environment. The cache's own behaviour is tested in fresh subprocesses
+# (tests/test_cold_start.py), which set or clear these variables themselves.
+_RUN_CACHE_OWNER = "HBJAX_TEST_RUN_CACHE"
+if not os.environ.get("HBJAX_CACHE_DIR") and not os.environ.get("HBJAX_NO_COMPILATION_CACHE"):
+    os.environ["HBJAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="hbjax-test-cache-")
+    os.environ[_RUN_CACHE_OWNER] = str(os.getpid())
+
+
+def pytest_unconfigure(config):
+    if os.environ.get(_RUN_CACHE_OWNER) == str(os.getpid()):
+        shutil.rmtree(os.environ["HBJAX_CACHE_DIR"], ignore_errors=True)
 
 
 jax.config.update("jax_enable_x64", True)

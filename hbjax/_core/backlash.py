@@ -39,6 +39,13 @@ def power_columns(v: Float[Array, " time"], m: int) -> Float[Array, "time m"]:
     return jnp.stack(cols, axis=-1)
 
 
+def play_step(u_prev, low, high):
+    """One sample of the play operator, ``u(t) = min(max(u(t-1), low(t)), high(t))``
+    (NOTES.md): the one expression of the clamp, shared by :meth:`Backlash.step`,
+    :func:`play_sources` and the diagnosis kernel's extended recursion."""
+    return jnp.minimum(jnp.maximum(u_prev, low), high)
+
+
 def play_sources(low: Float[Array, " time"], high: Float[Array, " time"], force=None, *,
                  u0=0.0):
     """The play operator ``u(t) = min(max(u(t-1), low(t)), high(t))`` (``u(-1) = u0``)
@@ -58,9 +65,9 @@ def play_sources(low: Float[Array, " time"], high: Float[Array, " time"], force=
     def step(carry, inputs):
         u_prev, src_prev = carry
         lo, hi, t, f = inputs
-        raised = jnp.maximum(u_prev, lo)
-        src = jnp.where(raised > hi, T + t, jnp.where(u_prev < lo, t, src_prev))
-        u = jnp.minimum(raised, hi)
+        src = jnp.where(jnp.maximum(u_prev, lo) > hi, T + t,
+                        jnp.where(u_prev < lo, t, src_prev))
+        u = play_step(u_prev, lo, hi)
         if f is not None:
             u = jnp.select([f == 0, f == 1, f == 2], [lo, hi, u_prev], u)
             src = jnp.select([f == 0, f == 1, f == 2], [t, T + t, src_prev], src)
@@ -151,8 +158,7 @@ class Backlash(eqx.Module):
 
     def step(self, u_prev, v):
         """One sample of the play operator: clamp the last output into the band at v."""
-        low, high = self.band(v)
-        return jnp.minimum(jnp.maximum(u_prev, low), high)
+        return play_step(u_prev, *self.band(v))
 
     def __repr__(self) -> str:
         return display.pformat(self)

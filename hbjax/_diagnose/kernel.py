@@ -34,6 +34,7 @@ from .._core.arx import equation_error
 from .._core.backlash import (
     gather_play,
     play_sources,
+    play_step,
     polyval_ascending,
     power_columns,
     source_edges,
@@ -158,7 +159,7 @@ def simulate_full(lay: Layout, theta, ints, consts, v, noise, u0):
             y_t = y_t + (b[i] + s * db[i]) * u_del[i]
         p1 = _branch(c1, dc1, c1x, s, v_t, vs, m)
         p2 = _branch(c2, dc2, c2x, s, v_t, vs, m)
-        u_t = jnp.minimum(jnp.maximum(u_play, jnp.minimum(p1, p2)), jnp.maximum(p1, p2))
+        u_t = play_step(u_play, jnp.minimum(p1, p2), jnp.maximum(p1, p2))
         u_sat = jnp.clip(u_t, in_lo, in_hi)
         u_buf = jnp.concatenate([u_sat[None], u_buf[:-1]])
         u_used = jax.lax.dynamic_index_in_dim(u_buf, delay, keepdims=False)

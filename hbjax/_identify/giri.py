@@ -20,7 +20,7 @@ from .._core.signals import GiriDesign
 from .._misc import as_float_array, check_finite, check_magnitude, is_traced, lagged
 from .._results import RESULTS, message, raise_if_failed
 from .giri_band import project_onto_band
-from .linear import arx_regressors
+from .linear import arx_regressors, equilibrate, equilibrated_solve
 
 # Result codes: members of the package's one enumeration (their integer values are what the
 # Monte Carlo study stores per realisation).
@@ -136,11 +136,8 @@ def _least_squares(design, y2, offset):
     target = y_tilde[n:]
     rows = phi.shape[0]
     gram = phi.T @ phi / rows
-    # Equilibrate before solving so the condition number reflects the design, not units.
-    scale = jnp.sqrt(jnp.diag(gram))
-    scale = jnp.where(scale > 0, scale, 1.0)
-    gram_s = gram / jnp.outer(scale, scale)
-    theta = jnp.linalg.solve(gram_s, (phi.T @ target / rows) / scale) / scale
+    theta = equilibrated_solve(gram, phi.T @ target / rows, differentiable=True)
+    gram_s, scale = equilibrate(gram)
     eig = jnp.linalg.eigvalsh(gram_s)
     cond = eig[-1] / jnp.maximum(eig[0], 1e-300)
     resid = target - phi @ theta

@@ -4,7 +4,9 @@ With the internal signal ``u`` known (a backlash start in :func:`hbjax.fit`, the
 branches in separable least squares, the binary internal signal of the closed form's
 second experiment, eq. (23)) the equation error ``y(t) - phi(t)^T [a; b]`` is linear in
 ``a, b``. Every estimator builds ``phi`` here and solves through
-:func:`arx_least_squares`.
+:func:`arx_least_squares` or, where it also needs the condition number and the
+covariance (the closed form's eq. (26)), :func:`equilibrate` and
+:func:`equilibrated_solve`.
 """
 
 import jax.numpy as jnp
@@ -21,16 +23,22 @@ def arx_regressors(u: Float[Array, " time"], y: Float[Array, " time"], na: int,
     return jnp.stack(cols, axis=1)
 
 
+def equilibrate(gram):
+    """``(gram / outer(s, s), s)`` with ``s = sqrt(diag(gram))``: the normal equations
+    scaled to a unit diagonal, so that their condition number reflects the design, not
+    the units of ``y`` and ``u``."""
+    scale = jnp.sqrt(jnp.maximum(jnp.diagonal(gram), 1e-300))
+    return gram / jnp.outer(scale, scale), scale
+
+
 def equilibrated_solve(gram, rhs, *, differentiable: bool = False):
-    """``gram^-1 rhs`` with the normal equations scaled to a unit diagonal first (the
-    condition number then reflects the design, not the units of ``y`` and ``u``).
+    """``gram^-1 rhs`` solved on the equilibrated normal equations (:func:`equilibrate`).
 
     ``differentiable=False`` uses ``lstsq`` (the minimum-norm solution where a start
     leaves the regression singular); ``True`` uses ``solve``, whose derivative the
     separable least squares differentiates through.
     """
-    scale = jnp.sqrt(jnp.maximum(jnp.diagonal(gram), 1e-300))
-    scaled = gram / jnp.outer(scale, scale)
+    scaled, scale = equilibrate(gram)
     if differentiable:
         return jnp.linalg.solve(scaled, rhs / scale) / scale
     return jnp.linalg.lstsq(scaled, rhs / scale)[0] / scale
