@@ -96,6 +96,9 @@ def touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion,
         return par, z2, res2, steps + steps2, ssr2, jtj2, k + 1, consistent, x_bad
 
     consistent, x_bad = check(par, z)
+    # The first optimum already is the core operator's model on the data (no touch, no
+    # reorientation): the labelled and core costs agree around it.
+    direct = consistent & ~flip & (result == ok)
     state = (par, z, result, steps, ssr, jtj, jnp.asarray(0), consistent, x_bad)
     par, z, result, steps, ssr, jtj, _, consistent, _ = jax.lax.while_loop(again, touch, state)
     need_core = ~consistent & (result == ok)
@@ -124,7 +127,7 @@ def touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion,
         return jac.T @ jac
 
     jtj = jax.lax.cond(jnp.any(par.touch_on), unconstrained, lambda _: jtj, None)
-    return free_par, z, result, steps, ssr, jtj
+    return free_par, z, result, steps, ssr, jtj, direct
 
 
 def labelled_from(par, z_start, recordings, criterion, statistics, options):
@@ -133,10 +136,20 @@ def labelled_from(par, z_start, recordings, criterion, statistics, options):
     ``(par, z, result, steps, SSR, SSR at z_start, J^T J)``."""
     z, result, steps, ssr, ssr0, jtj = solve_criterion(par, z_start, recordings, criterion,
                                                        statistics, options)
-    par, z, result, steps, ssr, jtj = touch_where_decisive(par, z, result, steps, ssr, jtj,
-                                                           recordings, criterion, statistics,
-                                                           options)
+    par, z, result, steps, ssr, jtj, _ = touch_where_decisive(par, z, result, steps, ssr,
+                                                              jtj, recordings, criterion,
+                                                              statistics, options)
     return par, z, result, steps, ssr, ssr0, jtj
+
+
+def _labelled_and_direct(par, z_start, recordings, criterion, statistics, options):
+    """:func:`labelled_from` and whether its first solve ended on a model the labelled and
+    the core operators agree on (no touch equality, no reorientation, no core finish)."""
+    z, result, steps, ssr, ssr0, jtj = solve_criterion(par, z_start, recordings, criterion,
+                                                       statistics, options)
+    par, z, result, steps, ssr, jtj, direct = touch_where_decisive(
+        par, z, result, steps, ssr, jtj, recordings, criterion, statistics, options)
+    return (par, z, result, steps, ssr, ssr0, jtj), direct
 
 
 def best_of_core_start(par, z0, recordings, criterion, statistics, options):
@@ -159,45 +172,55 @@ def best_of_core_start(par, z0, recordings, criterion, statistics, options):
     and still short of the optimum, ``m = 5`` at 5 % noise); the labelled pipeline from
     there crosses at that input, adds the touch equality and converges on the smooth
     constrained problem. Both pipelines are solved and the best kept, so no one path's
-    failure is the result's; the step count is that of the kept path.
+    failure is the result's; the step count is that of the kept path. Where the labelled
+    solve ends directly (no touch, no reorientation, no core finish) on a model the two
+    operators agree on, its optimum is kept without the core solve.
     """
     ok = optx.RESULTS.successful
     par = eqx.tree_at(lambda p: (p.touch_x, p.touch_on), par,
                       (jnp.zeros(MAX_TOUCHES), jnp.zeros(MAX_TOUCHES, bool)),
                       is_leaf=lambda x: x is None)
-    core_par = eqx.tree_at(lambda p: (p.core, p.touch_on), par,
-                           (jnp.asarray(True), jnp.zeros(MAX_TOUCHES, bool)))
-    z_c, res_c, steps_c, ssr_c, jtj_c = _core_solve_with_restarts(core_par, z0, recordings,
-                                                                 criterion, options)
-    core_good = (res_c == ok) & jnp.isfinite(ssr_c) & jnp.all(jnp.isfinite(z_c))
+    labelled, direct = _labelled_and_direct(par, z0, recordings, criterion, statistics,
+                                            options)
 
     def good(par_l, z_l, res_l, ssr_l):
         consistent, _ = core_consistent(par_l.theta_scaled(z_l), par_l.band, recordings,
                                         par_l.scale, par_l.na, par_l.nb)
         return (res_l == ok) & consistent & jnp.isfinite(ssr_l)
 
-    labelled = labelled_from(par, z0, recordings, criterion, statistics, options)
+    def with_core_solve(_):
+        core_par = eqx.tree_at(lambda p: (p.core, p.touch_on), par,
+                               (jnp.asarray(True), jnp.zeros(MAX_TOUCHES, bool)))
+        z_c, res_c, steps_c, ssr_c, jtj_c = _core_solve_with_restarts(core_par, z0, recordings,
+                                                                     criterion, options)
+        core_good = (res_c == ok) & jnp.isfinite(ssr_c) & jnp.all(jnp.isfinite(z_c))
 
-    def from_core_stop(_):
-        # On the full residual: the sufficient statistics freeze the play operator's
-        # sources for a round, and their rounds from here settled far from the optimum
-        # (measured: a cost 1.7e5 sigma^2 above the true system's, where the full solve
-        # from the same point reached the optimum in 60 steps).
-        lower = lower_is_p1(par.model(z_c), recordings)
-        par_c = eqx.tree_at(lambda p: p.lower_is_p1, par, lower)
-        out = labelled_from(par_c, z_c, recordings, criterion, False, options)
-        take = good(*out[:3], out[4]) & (~good(*labelled[:3], labelled[4])
-                                          | (out[4] < labelled[4] * (1 - 1e-9)))
-        kept = jax.tree_util.tree_map(lambda a, b: jnp.where(take, a, b), out, labelled)
-        return kept[:5] + (labelled[5],) + kept[6:]
+        def from_core_stop(_):
+            # On the full residual: the sufficient statistics freeze the play operator's
+            # sources for a round, and their rounds from here settled far from the optimum
+            # (measured: a cost 1.7e5 sigma^2 above the true system's, where the full solve
+            # from the same point reached the optimum in 60 steps).
+            lower = lower_is_p1(par.model(z_c), recordings)
+            par_c = eqx.tree_at(lambda p: p.lower_is_p1, par, lower)
+            out = labelled_from(par_c, z_c, recordings, criterion, False, options)
+            take = good(*out[:3], out[4]) & (~good(*labelled[:3], labelled[4])
+                                              | (out[4] < labelled[4] * (1 - 1e-9)))
+            kept = jax.tree_util.tree_map(lambda a, b: jnp.where(take, a, b), out, labelled)
+            return kept[:5] + (labelled[5],) + kept[6:]
 
-    labelled = jax.lax.cond(res_c == ok, lambda _: labelled, from_core_stop, None)
-    par_l, z_l, res_l, steps_l, ssr_l, ssr0, jtj_l = labelled
-    lab_good = good(par_l, z_l, res_l, ssr_l)
-    # Both paths often reach the same optimum; a cost lower only at rounding level (which
-    # the summation order of padded records can flip) must not switch the path.
-    use_core = core_good & (~lab_good | (ssr_c < ssr_l * (1 - 1e-9)))
-    par = eqx.tree_at(lambda p: p.core, par_l, jnp.where(use_core, True, par_l.core))
-    return (par, jnp.where(use_core, z_c, z_l), optx.RESULTS.where(use_core, res_c, res_l),
-            jnp.where(use_core, steps_c, steps_l), jnp.where(use_core, ssr_c, ssr_l), ssr0,
-            jnp.where(use_core, jtj_c, jtj_l))
+        best = jax.lax.cond(res_c == ok, lambda _: labelled, from_core_stop, None)
+        par_l, z_l, res_l, steps_l, ssr_l, ssr0, jtj_l = best
+        lab_good = good(par_l, z_l, res_l, ssr_l)
+        # Both paths often reach the same optimum; a cost lower only at rounding level
+        # (which the summation order of padded records can flip) must not switch the path.
+        use_core = core_good & (~lab_good | (ssr_c < ssr_l * (1 - 1e-9)))
+        par_k = eqx.tree_at(lambda p: p.core, par_l, jnp.where(use_core, True, par_l.core))
+        return (par_k, jnp.where(use_core, z_c, z_l),
+                optx.RESULTS.where(use_core, res_c, res_l),
+                jnp.where(use_core, steps_c, steps_l), jnp.where(use_core, ssr_c, ssr_l), ssr0,
+                jnp.where(use_core, jtj_c, jtj_l))
+
+    # Where the labelled solve's first optimum already is the core operator's model on the
+    # data, it is a stationary point of both criteria and the core solve from the start
+    # (a data pass per step, about two thirds of a refinement's time) is skipped.
+    return jax.lax.cond(direct, lambda _: labelled, with_core_solve, None)
