@@ -159,11 +159,31 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
     # start stops, about 10x the work on the tanks (20 s against 1.9 s of CPU, 32 starts);
     # each start's results are the same.
     res = jax.lax.map(one, keys)
-    ok = res.result == RESULTS.successful
-    costs = jnp.where(ok, res.stats["cost"], jnp.inf)
-    # If no start converged, report the least bad one with its failure code.
-    best = jnp.where(jnp.any(ok), jnp.argmin(costs), jnp.argmin(
-        jnp.where(jnp.isfinite(res.stats["cost"]), res.stats["cost"], jnp.inf)))
+
+    def best_start(res):
+        ok = res.result == RESULTS.successful
+        costs = jnp.where(ok, res.stats["cost"], jnp.inf)
+        # If no start converged, report the least bad one with its failure code.
+        best = jnp.where(jnp.any(ok), jnp.argmin(costs), jnp.argmin(
+            jnp.where(jnp.isfinite(res.stats["cost"]), res.stats["cost"], jnp.inf)))
+        return ok, costs, best
+
+    ok, costs, best = best_start(res)
+    # The starts solve on the labelled band only (cheap, many); the best one is refined
+    # once more as `refine` does, with the core operator's solve as well. Where the
+    # branches meet or cross inside the data, the labelled band cannot follow the loop
+    # and the best start is a local minimum the core solve leaves (measured on random
+    # closing-loop systems: 1100-1600 sigma^2 above the true system's cost -> at it).
+    polished = refine_traceable(jax.tree_util.tree_map(lambda x: x[best], res.model),
+                                recordings, criterion=criterion, h_m=None,
+                                max_steps=max_steps, rtol=rtol, atol=atol, statistics=False,
+                                min_sim_fit=min_sim_fit, initial_state=initial_state,
+                                stable=True, core_start=True)
+    take = (polished.result == RESULTS.successful) & (
+        ~ok[best] | (polished.stats["cost"] < costs[best] * (1 - 1e-9)))
+    res = jax.tree_util.tree_map(
+        lambda a, b: a.at[best].set(jnp.where(take, b, a[best])), res, polished)
+    ok, costs, best = best_start(res)
     pick = lambda x: x[best]  # noqa: E731
     model, swap = canonical_labels(jax.tree_util.tree_map(pick, res.model), recordings)
     params = jax.vmap(lambda mdl: flatten_params(canonical_labels(mdl, recordings)[0]))(
