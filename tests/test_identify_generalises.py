@@ -148,3 +148,44 @@ def test_fit_carries_the_free_run_fit_of_every_record():
                                atol=1e-8)
     assert np.all(np.asarray(res.sim_fit) > 90.0) and bool(res.stable)
     assert "free-run fit per estimation record" in str(res.summary())
+
+
+def _prediction_ssr(model, records):
+    """Sum of squared one-step prediction errors, NumPy (the generator's predictor)."""
+    from tests.generators.paper_class import predict_numpy
+
+    sys = dict(a=np.asarray(model.arx.a), b=np.asarray(model.arx.b),
+               c1=np.asarray(model.backlash.c1), c2=np.asarray(model.backlash.c2))
+    return sum(float(np.sum((y - predict_numpy(sys, v, y)) ** 2)) for v, y in records)
+
+
+@pytest.mark.slow
+def test_closing_loops_refined_from_the_truth_stay_at_its_cost():
+    """Random systems whose branches meet or cross inside the input range (independent
+    generator): refined from the true model, the prediction cost stays within the chi-square
+    allowance of the truth's. Refinement once skipped its core-operator solve whenever the
+    labelled solve ended on a model without a decisive crossing, and so left a crossing
+    system for a model without the crossing (370 sigma^2 above the truth's cost)."""
+    from scipy.stats import chi2
+
+    from tests.generators.paper_class import (
+        INPUT_KINDS, random_closing_loop_system, random_input, to_hbjax)
+
+    rng = np.random.default_rng(2026)
+    excess = []
+    for _ in range(4):
+        sys = random_closing_loop_system(rng, kind="cross")
+        v = random_input(rng, INPUT_KINDS[int(rng.integers(len(INPUT_KINDS)))], 3000,
+                         sys["scale"])
+        free, _ = simulate_numpy(sys, v)
+        sigma = 0.01 * float(np.ptp(free))
+        y, _ = simulate_numpy(sys, v, sigma * rng.normal(size=v.size))
+        truth = to_hbjax(sys)
+        res = hbjax.refine(truth, [(v, y)], throw=False)
+        if res.message != "success":
+            continue  # a refusal is allowed; a success must be at the optimum
+        p = len(sys["a"]) + len(sys["b"]) + 2 * len(sys["c1"]) - 1
+        excess.append((_prediction_ssr(res.model, [(v, y)])
+                       - _prediction_ssr(truth, [(v, y)])) / sigma**2 / chi2.ppf(0.99, p))
+    assert len(excess) >= 3, excess
+    assert max(excess) <= 1.0, excess
