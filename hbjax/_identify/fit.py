@@ -136,12 +136,33 @@ def _swap_covariance(cov, swap, na, nb, m):
     return jnp.where(swap, swapped, cov)
 
 
+def _polish_best(res, ok, costs, best, recordings, **options):
+    """The starts solve on the labelled band only (cheap, many); the best one is refined
+    once more as `refine` does, with the core operator's solve as well. Where the branches
+    meet or cross inside the data, the labelled band cannot follow the loop and the best
+    start is a local minimum the core solve leaves (measured on random closing-loop
+    systems: 1100-1600 sigma^2 above the true system's cost -> at it). The refined start
+    replaces the best one where it succeeds with a lower cost (or none had succeeded)."""
+    polished = refine_traceable(jax.tree_util.tree_map(lambda x: x[best], res.model),
+                                recordings, h_m=None, statistics=False, stable=True,
+                                core_start=True, **options)
+    take = (polished.result == RESULTS.successful) & (
+        ~ok[best] | (polished.stats["cost"] < costs[best] * (1 - 1e-9)))
+    return jax.tree_util.tree_map(
+        lambda a, b: a.at[best].set(jnp.where(take, b, a[best])), res, polished)
+
+
 def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32,
                   criterion: str = "prediction", max_steps: int = 256,
                   rtol: float = 1e-7, atol: float = 1e-7,
                   min_sim_fit: float = SIM_FIT_FLOOR,
-                  initial_state: str = "estimate") -> FitResult:
-    """Traceable core of :func:`fit` (recordings a tuple of ``(v, y)`` arrays)."""
+                  initial_state: str = "estimate", polish: bool = True) -> FitResult:
+    """Traceable core of :func:`fit` (recordings a tuple of ``(v, y)`` arrays).
+
+    ``polish=False`` leaves out the best start's refinement with the core operator's solve
+    (:func:`_polish_best`), which changes nothing unless the best start's branches meet
+    inside the data or no start succeeded: :func:`fit` runs without it first and again
+    with it only then, so that ordinary data do not compile the core solve."""
     scale = data_scale(recordings)
     keys = jax.random.split(key, starts)
 
@@ -169,21 +190,11 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         return ok, costs, best
 
     ok, costs, best = best_start(res)
-    # The starts solve on the labelled band only (cheap, many); the best one is refined
-    # once more as `refine` does, with the core operator's solve as well. Where the
-    # branches meet or cross inside the data, the labelled band cannot follow the loop
-    # and the best start is a local minimum the core solve leaves (measured on random
-    # closing-loop systems: 1100-1600 sigma^2 above the true system's cost -> at it).
-    polished = refine_traceable(jax.tree_util.tree_map(lambda x: x[best], res.model),
-                                recordings, criterion=criterion, h_m=None,
-                                max_steps=max_steps, rtol=rtol, atol=atol, statistics=False,
-                                min_sim_fit=min_sim_fit, initial_state=initial_state,
-                                stable=True, core_start=True)
-    take = (polished.result == RESULTS.successful) & (
-        ~ok[best] | (polished.stats["cost"] < costs[best] * (1 - 1e-9)))
-    res = jax.tree_util.tree_map(
-        lambda a, b: a.at[best].set(jnp.where(take, b, a[best])), res, polished)
-    ok, costs, best = best_start(res)
+    if polish:
+        res = _polish_best(res, ok, costs, best, recordings, criterion=criterion,
+                           max_steps=max_steps, rtol=rtol, atol=atol,
+                           min_sim_fit=min_sim_fit, initial_state=initial_state)
+        ok, costs, best = best_start(res)
     pick = lambda x: x[best]  # noqa: E731
     model, swap = canonical_labels(jax.tree_util.tree_map(pick, res.model), recordings)
     params = jax.vmap(lambda mdl: flatten_params(canonical_labels(mdl, recordings)[0]))(
@@ -281,9 +292,15 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         )
     # The starts run inside one compiled program: the bar shows the elapsed time.
     with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
-        res = _fit_jit(recs, key, na=na, nb=nb, m=m, starts=starts, criterion=criterion,
+        options = dict(na=na, nb=nb, m=m, starts=starts, criterion=criterion,
                        max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit),
                        initial_state=initial_state)
+        traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
+        res = _fit_jit(recs, key, polish=traced, **options)
+        if not traced and (bool(res.branches_cross) or res.result != RESULTS.successful):
+            # Only a loop closing inside the data (or no success) needs the core solve of
+            # the best start: the same starts again, with it (fit_traceable's `polish`).
+            res = _fit_jit(recs, key, polish=True, **options)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
