@@ -174,7 +174,8 @@ def test_closing_loops_refined_from_the_truth_stay_at_its_cost():
     rng = np.random.default_rng(2026)
     excess = []
     for _ in range(4):
-        sys = random_closing_loop_system(rng, kind="cross")
+        # one shape (na = nb = 2, m = 3, T = 3000): one compilation for the four systems
+        sys = random_closing_loop_system(rng, n=2, m=3, kind="cross")
         v = random_input(rng, INPUT_KINDS[int(rng.integers(len(INPUT_KINDS)))], 3000,
                          sys["scale"])
         free, _ = simulate_numpy(sys, v)
