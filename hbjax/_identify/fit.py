@@ -141,7 +141,7 @@ def _polish_best(res, ok, costs, best, recordings, **options):
     once more as `refine` does, with the core operator's solve as well. Where the branches
     meet or cross inside the data, the labelled band cannot follow the loop and the best
     start is a local minimum the core solve leaves (measured on random closing-loop
-    systems: 1100-1600 sigma^2 above the true system's cost -> at it). The refined start
+    systems: 210-1600 sigma^2 above the true system's cost -> at it). The refined start
     replaces the best one where it succeeds with a lower cost (or none had succeeded)."""
     polished = refine_traceable(jax.tree_util.tree_map(lambda x: x[best], res.model),
                                 recordings, h_m=None, statistics=False, stable=True,

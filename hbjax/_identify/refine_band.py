@@ -134,12 +134,7 @@ def labelled_from(par, z_start, recordings, criterion, statistics, options):
     """The labelled pipeline from ``z_start``: one solve on the labelled band (its orientation
     ``par.lower_is_p1`` as given), then :func:`touch_where_decisive`:
     ``(par, z, result, steps, SSR, SSR at z_start, J^T J)``."""
-    z, result, steps, ssr, ssr0, jtj = solve_criterion(par, z_start, recordings, criterion,
-                                                       statistics, options)
-    par, z, result, steps, ssr, jtj, _ = touch_where_decisive(par, z, result, steps, ssr,
-                                                              jtj, recordings, criterion,
-                                                              statistics, options)
-    return par, z, result, steps, ssr, ssr0, jtj
+    return _labelled_and_direct(par, z_start, recordings, criterion, statistics, options)[0]
 
 
 def _labelled_and_direct(par, z_start, recordings, criterion, statistics, options):
