@@ -229,8 +229,24 @@ def _internal(theta, x, na, nb, band):
     the coefficients is the row of powers ``x(s)^i`` on that branch (a gather), which
     replaces differentiating through the sequential loop.
     """
+    u, idx, on_p1, on_p2 = branch_sources(theta, x, na, nb, band)
     _, _, c1, c2 = split_theta(theta, na, nb)
     m = c1.shape[0]
+    xs = x[idx]
+    powers = power_columns(xs, m)
+    grad = jnp.concatenate([powers * on_p1[:, None], powers * on_p2[:, None]], axis=1)
+    k = jnp.arange(1, m)
+    d1 = polyval_ascending(c1[1:] * k, xs) if m > 1 else jnp.zeros_like(xs)
+    d2 = polyval_ascending(c2[1:] * k, xs) if m > 1 else jnp.zeros_like(xs)
+    grad_x = jnp.where(on_p1, d1, jnp.where(on_p2, d2, 0.0))
+    return u, grad, grad_x, idx
+
+
+def branch_sources(theta, x, na, nb, band):
+    """The play operator's output under the band rule of :func:`_internal` and where it
+    comes from: ``(u, idx, on_p1, on_p2)``, ``u(t)`` being branch ``P1`` (``on_p1``) or
+    ``P2`` (``on_p2``) at the input ``x(idx(t))``, or still ``u(-1) = 0`` (neither)."""
+    _, _, c1, c2 = split_theta(theta, na, nb)
     band = jnp.asarray(band).astype(jnp.int32)
     core = band == CORE_BAND
     labelled_p1 = band == LABELLED_P1_LOWER
@@ -245,15 +261,7 @@ def _internal(theta, x, na, nb, band):
     low_is_p1 = jnp.where(core, p1 <= p2, labelled_p1)
     idx, on_high, valid = source_edges(src)
     on_p1 = valid & (on_high != low_is_p1[idx])
-    on_p2 = valid & ~on_p1
-    xs = x[idx]
-    powers = power_columns(xs, m)
-    grad = jnp.concatenate([powers * on_p1[:, None], powers * on_p2[:, None]], axis=1)
-    k = jnp.arange(1, m)
-    d1 = polyval_ascending(c1[1:] * k, xs) if m > 1 else jnp.zeros_like(xs)
-    d2 = polyval_ascending(c2[1:] * k, xs) if m > 1 else jnp.zeros_like(xs)
-    grad_x = jnp.where(on_p1, d1, jnp.where(on_p2, d2, 0.0))
-    return u, grad, grad_x, idx
+    return u, idx, on_p1, valid & ~on_p1
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(3, 4))

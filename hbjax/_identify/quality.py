@@ -14,7 +14,9 @@ from .._core.backlash import polyval_ascending
 from .._core.model import Hammerstein
 from .._core.params import split_theta
 from .._core.initial import _estimate
-from .criteria import CORE_BAND, SIMULATION, _internal, record_residual, unpack, where_valid
+from .._core.arx import all_pole
+from .._misc import lag_sum
+from .criteria import CORE_BAND, SIMULATION, branch_sources, unpack, where_valid
 from .stable import remove_start
 
 # A result whose free-run fit on its own estimation data (all records pooled) is below this
@@ -37,15 +39,36 @@ def core_consistent(theta_scaled, band, recordings, scale, na: int, nb: int):
     of the core operator ``L = min, H = max`` (:func:`hbjax.simulate`) on every recorded
     sample (where it does, a crossing of the branches decides no output and the fit is
     the core model's fit), and the scaled input ``x`` of the deepest crossing among the
-    samples whose output differs (0 if none)."""
+    samples whose output differs (0 if none).
+
+    Where the labelled edges do not cross at any recorded input (or ``band`` is the core
+    rule itself) the two operators are the same computation and agree without running
+    them; only a crossing inside the data costs the two play-operator scans per record."""
+    _, _, c1, c2 = split_theta(theta_scaled, na, nb)
+    band = jnp.asarray(band).astype(jnp.int32)
+    lower = band == 1
+    no_crossing = band == CORE_BAND
+    ordered = jnp.asarray(True)
+    for v, _, mask in map(unpack, recordings):
+        x = v / scale
+        d = polyval_ascending(c2, x) - polyval_ascending(c1, x)
+        ordered = ordered & jnp.all(where_valid(mask, jnp.where(lower, d, -d) >= 0, True))
+    return jax.lax.cond(no_crossing | ordered,
+                        lambda: (jnp.asarray(True), jnp.zeros((), x.dtype)),
+                        lambda: _compare_operators(theta_scaled, band, recordings, scale,
+                                                   na, nb))
+
+
+def _compare_operators(theta_scaled, band, recordings, scale, na: int, nb: int):
+    """:func:`core_consistent` by running both operators on every record."""
     ok = jnp.asarray(True)
     x_bad, depth = jnp.zeros(()), jnp.asarray(-jnp.inf)
     _, _, c1, c2 = split_theta(theta_scaled, na, nb)
-    lower = jnp.asarray(band).astype(jnp.int32) == 1
+    lower = band == 1
     for v, _, mask in map(unpack, recordings):
         x = v / scale
-        u_fit = _internal(theta_scaled, x, na, nb, band)[0]
-        u_core = _internal(theta_scaled, x, na, nb, CORE_BAND)[0]
+        u_fit = branch_sources(theta_scaled, x, na, nb, band)[0]
+        u_core = branch_sources(theta_scaled, x, na, nb, CORE_BAND)[0]
         tol = 1e-10 * (jnp.max(where_valid(mask, jnp.abs(u_core), 0.0))
                        + jnp.finfo(u_core.dtype).tiny)
         differ = where_valid(mask, jnp.abs(u_fit - u_core) > tol, False)
@@ -56,7 +79,7 @@ def core_consistent(theta_scaled, band, recordings, scale, na: int, nb: int):
         x_bad = jnp.where(deeper, x[i], x_bad)
         depth = jnp.maximum(depth, crossing[i])
         ok = ok & ~jnp.any(differ)
-    return ok, x_bad
+    return ok, x_bad.astype(x.dtype)
 
 
 def reflection_coefficients(a: Float[Array, " na"]) -> Float[Array, " na"]:
@@ -98,13 +121,15 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
     ``(2, 2)``, ``[[lo, hi] of P1, [lo, hi] of P2]`` over the inputs at the source
     instants of the output (NaN for a branch that never decides it). An unstable model's
     free run may overflow: its fit is then ``-inf``."""
-    na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
+    na, nb = model.arx.na, model.arx.nb
     theta = _theta(model)
     fits, num, den = [], 0.0, 0.0
     lo = jnp.full(2, jnp.inf)
     hi = jnp.full(2, -jnp.inf)
     for v, y, mask in map(unpack, recordings):
-        r = record_residual(theta, v, y, CORE_BAND, na, nb, SIMULATION)
+        # One play-operator pass gives the free run's input and the active ranges below.
+        u, idx, on_p1, on_p2 = branch_sources(theta, v, na, nb, CORE_BAND)
+        r = y - all_pole(model.arx.a, lag_sum(model.arx.b, u))
         if initial_state == "estimate" and mask is None:
             r = jnp.sqrt(_estimate(model, v, y).cost)  # the free run's error from it
         elif initial_state == "estimate":
@@ -118,10 +143,9 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
             d2 = jnp.sum(where_valid(mask, (y - mean) ** 2, 0.0))
         fits.append(100.0 * (1.0 - jnp.sqrt(e2) / jnp.sqrt(jnp.maximum(d2, 1e-300))))
         num, den = num + e2, den + d2
-        _, g, _, idx = _internal(theta, v, na, nb, CORE_BAND)
-        for k, col in enumerate((0, m)):
-            on = where_valid(mask, g[:, col] == 1.0, False)
-            vs = v[idx]
+        vs = v[idx]
+        for k, on in enumerate((on_p1, on_p2)):
+            on = where_valid(mask, on, False)
             lo = lo.at[k].min(jnp.min(jnp.where(on, vs, jnp.inf)))
             hi = hi.at[k].max(jnp.max(jnp.where(on, vs, -jnp.inf)))
     pooled = 100.0 * (1.0 - jnp.sqrt(num) / jnp.sqrt(jnp.maximum(den, 1e-300)))
