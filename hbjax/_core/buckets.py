@@ -46,11 +46,19 @@ def pad(x, length: int) -> jax.Array:
     """Concrete ``x`` with zeros appended up to ``length`` samples, padded on the host and
     placed with ``device_put`` (an eager ``jnp`` op would compile once per length) on the
     device ``x`` was committed to, if any."""
-    device = None
-    if isinstance(x, jax.Array) and x.committed:
-        device = next(iter(x.devices()))
+    return jax.device_put(_padded(x, length), _committed_device(x))
+
+
+def _padded(x, length: int) -> np.ndarray:
     x = np.asarray(x)
-    return jax.device_put(np.pad(x, (0, length - x.shape[0])), device)
+    return np.pad(x, (0, length - x.shape[0]))
+
+
+def _committed_device(x):
+    """The device a concrete JAX array was committed to, else ``None`` (JAX's default)."""
+    if isinstance(x, jax.Array) and x.committed:
+        return next(iter(x.devices()))
+    return None
 
 
 def padded_records(recordings) -> tuple:
@@ -61,9 +69,13 @@ def padded_records(recordings) -> tuple:
     (:func:`hbjax._identify.criteria.unpack`), which makes the padding invisible in their
     results; the recursions are causal, so the recorded samples are computed as without it.
     """
-    out = []
+    host, devices = [], []
     for v, y in recordings:
         n = int(v.shape[0])
         size = bucket_length(n)
-        out.append((pad(v, size), pad(y, size), jax.device_put(np.asarray(n))))
-    return tuple(out)
+        host.append((_padded(v, size), _padded(y, size), np.asarray(n)))
+        devices.append(_committed_device(v))
+    # One transfer for all records where they share a device (0.05 ms per transfer).
+    if len(set(devices)) == 1:
+        return tuple(jax.device_put(tuple(host), devices[0]))
+    return tuple(jax.device_put(rec, device) for rec, device in zip(host, devices))

@@ -1,6 +1,7 @@
 """Flattening a model into its parameter vector, in the documented order a, b, c1, c2."""
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .arx import ARX
@@ -55,7 +56,11 @@ def gauge_factor(c1, c2, h_m):
     """``mu = P2(-h_m) - P1(h_m)``, the factor the paper's normalisation divides the
     branches by and multiplies ``B`` with (section 4.1, eqs. (11)-(13)); ``M2* - M1* = 1``
     afterwards. Traceable; evaluated eagerly under ``jax.ensure_compile_time_eval`` by the
-    argument checks."""
+    argument checks; NumPy coefficients and a number (an eager check) give a NumPy number
+    without dispatching JAX operations."""
+    if isinstance(c1, np.ndarray) and isinstance(c2, np.ndarray) and np.ndim(h_m) == 0:
+        return (np.polynomial.polynomial.polyval(-h_m, c2)
+                - np.polynomial.polynomial.polyval(h_m, c1))
     return polyval_ascending(c2, -h_m) - polyval_ascending(c1, h_m)
 
 

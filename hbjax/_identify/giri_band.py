@@ -70,12 +70,25 @@ def _project_host(g, z):
     return z + g.T @ lam
 
 
+def _project_rows(g, z):
+    """:func:`_project_host` on every row of ``z`` (any leading batch axes): one host call
+    per batch under ``vmap`` instead of one per realisation (a Monte Carlo study's closed
+    form took twice as long with a callback per realisation)."""
+    z = np.asarray(z)
+    rows = z.reshape(-1, z.shape[-1]).astype(float)
+    out = rows.copy()
+    need = np.all(np.isfinite(rows), axis=1) & np.any(rows @ g.T < 0, axis=1)
+    for k in np.flatnonzero(need):
+        out[k] = _project_host(g, rows[k])
+    return out.reshape(z.shape).astype(z.dtype)
+
+
 def project_onto_band(z, levels_scaled, m: int, orientation_ok):
     """``z`` (2m plateau values) projected onto the design's band cone
     (:func:`band_constraints`); unchanged where ``orientation_ok`` is False (a gap of the
     wrong sign: the closed form fails with ``gap_not_crossed`` anyway)."""
     g = band_constraints(levels_scaled, m)
     shape = jax.ShapeDtypeStruct(z.shape, z.dtype)
-    projected = jax.pure_callback(lambda zz: _project_host(g, zz).astype(zz.dtype), shape, z,
-                                  vmap_method="sequential")
+    projected = jax.pure_callback(lambda zz: _project_rows(g, zz), shape, z,
+                                  vmap_method="expand_dims")
     return jnp.where(orientation_ok, projected, z)

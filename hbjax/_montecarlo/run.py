@@ -7,9 +7,11 @@ is sharded over a 1-D device mesh, and chunks run one after another so memory st
 bounded whatever the number of realisations.
 """
 
+import functools
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
@@ -127,14 +129,14 @@ def monte_carlo(
             step = per_device[n] * n_dev
             compiled, compile_s[i] = chunk_executable(
                 model, design, n, noise, draws[n], estimator_fn, step, sharding, key)
-            key_n = jax.random.fold_in(key, n)
             t0 = time.perf_counter()
+            # Keys depend on (N, r) only: adding realisations or devices keeps old draws.
+            # All of a length's keys in one call (an eager vmap per chunk cost milliseconds).
+            all_keys = np.asarray(_realisation_keys(key, n, n_chunks[n] * step))
             pending = []
             for c in range(n_chunks[n]):
-                # Keys depend on (N, r) only: adding realisations or devices keeps old draws.
                 idx = np.arange(c * step, (c + 1) * step)
-                keys = jax.vmap(jax.random.fold_in, (None, 0))(key_n, idx)
-                keys = global_array(np.asarray(jax.random.key_data(keys)), sharding)
+                keys = global_array(all_keys[c * step:(c + 1) * step], sharding)
                 # Dispatch is asynchronous: the next chunk is queued while this one runs.
                 pending.append((idx, compiled(model_r, std_r, keys)))
                 if len(pending) > 1:
@@ -151,6 +153,15 @@ def monte_carlo(
         noise_std=noise_std, estimator=estimator_name, noise=noise_name, n_devices=n_dev,
         chunk_size=int(min(per_device.values())),
     )
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _realisation_keys(key, length: int, count: int):
+    """The key data of realisations ``0 .. count - 1`` at record length ``length``:
+    ``fold_in(fold_in(key, length), r)``."""
+    key_n = jax.random.fold_in(key, length)
+    keys = jax.vmap(jax.random.fold_in, (None, 0))(key_n, jnp.arange(count))
+    return jax.random.key_data(keys)
 
 
 def _collect(item, estimates, codes, realisations, bar):
