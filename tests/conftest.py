@@ -2,9 +2,19 @@ import os
 import shutil
 import tempfile
 
-import jax
 import numpy as np
 import pytest
+
+# The suite compiles thousands of programs and runs most of them once or a few times:
+# XLA's CPU backend with LLVM's optimisation level 0 compiles them far faster (same HLO
+# passes; measured on three compile-bound tests: 207 -> 158 s). Set before JAX starts its
+# backend; the workers and subprocesses inherit it. A user's own XLA_FLAGS setting of it
+# is kept. Benchmarks and users run the default level.
+_XLA_LEVEL = "--xla_backend_optimization_level"
+if _XLA_LEVEL not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_XLA_LEVEL}=0".strip()
+
+import jax  # noqa: E402
 
 
 # One persistent compilation cache for the whole run, in a temporary directory: the xdist
