@@ -4,9 +4,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._misc import as_float_array, check_finite, float_dtype, is_traced
 from .arx import ARX
 from .backlash import Backlash, polyval_ascending
-from .._misc import as_float_array, check_finite, float_dtype, is_traced
 from .model import Hammerstein
 
 

@@ -10,11 +10,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from .._core.arx import all_pole
 from .._core.backlash import polyval_ascending
+from .._core.initial import _estimate
 from .._core.model import Hammerstein
 from .._core.params import split_theta
-from .._core.initial import _estimate
-from .._core.arx import all_pole
 from .._misc import lag_sum
 from .criteria import CORE_BAND, SIMULATION, branch_sources, unpack, where_valid
 from .stable import remove_start

@@ -23,7 +23,13 @@ from .._core.progress import check_progress, make_bar
 from .._core.signals import GiriDesign
 from .._identify.giri import normalise
 from .._misc import positive_float, positive_int
-from .checks import check_lengths, check_study_key, noise_draw, resolve_devices, resolve_estimator
+from .checks import (
+    check_lengths,
+    check_study_key,
+    noise_draw,
+    resolve_devices,
+    resolve_estimator,
+)
 from .chunks import AXIS, batch_per_device, chunk_executable, global_array, to_host
 from .study import Study
 
