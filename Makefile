@@ -40,6 +40,7 @@ bench: $(TEST_STAMP)
 	cd benchmarks && ../$(BIN)/python refine.py
 	cd benchmarks && ../$(BIN)/python monte_carlo.py
 	cd benchmarks && ../$(BIN)/python diagnose.py
+	cd benchmarks && ../$(BIN)/python against_earlier.py f15f477 c7c563c
 
 # The documentation site (mkdocs.yml): guides from docs/, API pages from the docstrings.
 docs: $(DOCS_STAMP)
