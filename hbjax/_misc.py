@@ -14,12 +14,14 @@ def is_traced(x) -> bool:
     return isinstance(x, jax.core.Tracer)
 
 
-def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None) -> jax.Array:
+def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None, host: bool = False):
     """Convert ``x`` to a real floating JAX array, naming ``name`` in any error.
 
     Floating inputs keep their precision (float32 stays float32 for training pipelines);
     integers and booleans become JAX's default float. Estimators pass ``dtype=jnp.float64``
-    after :func:`hbjax._core.precision.require_x64`.
+    after :func:`hbjax._core.precision.require_x64`. ``host=True`` returns data that is not
+    already a JAX array as a NumPy array (same checks), for callers that still edit it on
+    the host before one transfer to the device.
     """
     if isinstance(x, (str, bytes)) or x is None:
         raise TypeError(f"`{name}` must be a numeric array, got {type(x).__name__}.")
@@ -36,6 +38,16 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None) -> jax.
             raise TypeError(f"`{name}` must be a numeric array, got dtype {arr.dtype}.")
         if np.iscomplexobj(arr):
             raise TypeError(f"`{name}` must be real, got complex dtype {arr.dtype}.")
+        if host and not isinstance(x, jax.Array):
+            if dtype is not None:
+                arr = arr.astype(dtype, copy=False)
+            elif not np.issubdtype(arr.dtype, np.inexact):
+                arr = arr.astype(jnp.result_type(float))
+            if ndim is not None and arr.ndim != ndim:
+                raise ValueError(
+                    f"`{name}` must be a {ndim}-D array, got shape {tuple(arr.shape)}."
+                )
+            return arr
     elif not (jnp.issubdtype(x.dtype, jnp.floating) or jnp.issubdtype(x.dtype, jnp.integer)
               or x.dtype == jnp.bool_):
         # A traced array is checked by its dtype at trace time: a complex (or key) tracer

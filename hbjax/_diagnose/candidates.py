@@ -33,12 +33,14 @@ def fixed_b(lay: Layout, theta) -> int:
     """Index of the ``b`` coefficient held fixed: only ``(A, mu B, P / mu)`` is identifiable
     (paper section 4.1), so one scale is frozen (the largest ``b``) to remove the flat
     direction."""
-    return int(np.argmax(np.abs(np.asarray(lay.base(theta)[1]))))
+    return int(np.argmax(np.abs(lay.base(np.asarray(theta))[1])))
 
 
 def _columns(lay: Layout, free, levels, theta0) -> list[np.ndarray]:
     slots = lay.slots()
-    skip = {slots["b"][0] + fixed_b(lay, theta0), slots["db"][0] + fixed_b(lay, theta0)}
+    theta0 = np.asarray(theta0)  # read on the host: eager slices of a device array are slow
+    held = fixed_b(lay, theta0)
+    skip = {slots["b"][0] + held, slots["db"][0] + held}
     free = [(s, 1.0) for s in BASE_SLOTS] + list(free)
     # a clip level is freed only where the start clips (an open side stays open)
     free += [(s, 1.0) for s in levels if np.isfinite(float(lay.get(theta0, s)[0]))]

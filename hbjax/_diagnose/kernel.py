@@ -29,6 +29,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._core.arx import equation_error
 from .._core.backlash import (
@@ -40,7 +41,7 @@ from .._core.backlash import (
     source_edges,
 )
 from .._core.params import flatten_params, model_from_theta, split_theta
-from .._misc import lag_sum, lagged
+from .._misc import is_traced, lag_sum, lagged
 
 #: largest extra delay (samples) the extended simulator can represent
 MAX_DELAY = 12
@@ -114,8 +115,14 @@ class Layout(NamedTuple):
 
     def put(self, theta, name, value):
         start, stop = self.slots()[name]
-        value = jnp.broadcast_to(jnp.asarray(value, theta.dtype), (stop - start,))
-        return theta.at[start:stop].set(value)
+        if is_traced(theta) or is_traced(value):
+            value = jnp.broadcast_to(jnp.asarray(value, theta.dtype), (stop - start,))
+            return theta.at[start:stop].set(value)
+        # Concrete vectors (the candidates' starts, built eagerly) are edited on the host:
+        # an eager scatter costs about half a millisecond, and a diagnosis makes hundreds.
+        out = np.array(theta)  # a copy: the caller's vector is left as it was
+        out[start:stop] = value
+        return jnp.asarray(out)
 
 
 def _branch(c, dc, cx, s, v, vs, m):

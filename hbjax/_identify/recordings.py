@@ -55,10 +55,12 @@ def as_input_output(v, y=None):
     return pair[0], pair[1], getattr(v, "dt", None)
 
 
-def as_recordings(recordings, name: str = "recordings", *, model=None):
+def as_recordings(recordings, name: str = "recordings", *, model=None, host: bool = False):
     """One ``(v, y)`` pair, a recording (:func:`recording_arrays`), or a list of those -> a tuple
     of ``(v, y)`` float64 pairs, each finite, 1-D, of equal lengths within the pair, on the
-    same device as each other and as ``model`` (when given)."""
+    same device as each other and as ``model`` (when given). ``host=True`` leaves records
+    given as NumPy data on the host (for :func:`hbjax._core.buckets.padded_records`, which
+    pads them there and transfers them once)."""
     single = recording_arrays(recordings)
     if single is not None:
         items = [single]
@@ -82,8 +84,8 @@ def as_recordings(recordings, name: str = "recordings", *, model=None):
     out = []
     for k, (v, y) in enumerate(items):
         tag = f"{name}[{k}]" if len(items) > 1 else name
-        v = as_float_array(v, f"{tag} v", ndim=1, dtype=jnp.float64)
-        y = as_float_array(y, f"{tag} y", ndim=1, dtype=jnp.float64)
+        v = as_float_array(v, f"{tag} v", ndim=1, dtype=jnp.float64, host=host)
+        y = as_float_array(y, f"{tag} y", ndim=1, dtype=jnp.float64, host=host)
         if v.shape[0] != y.shape[0]:
             raise ValueError(
                 f"records must have equal lengths: in `{tag}`, v has {v.shape[0]} samples "

@@ -246,7 +246,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     ensure_compilation_cache()
     check_model(model)
     check_criterion(criterion)
-    recs = as_recordings(recordings, model=model)
+    recs = as_recordings(recordings, model=model, host=True)
     h_m = check_h_m(h_m)
     max_steps = positive_int(max_steps, "max_steps")
     q = flatten_params(model).shape[0] - 1
