@@ -155,8 +155,8 @@ def check_gauge(model, h_m):
     bl = model.backlash
     if is_traced(h_m):
         return
-    with jax.ensure_compile_time_eval():  # concrete even inside an outer jit
-        mu = float(gauge_factor(np.asarray(bl.c1), np.asarray(bl.c2), float(h_m)))
+    # A concrete model and h_m (checked above): computed in NumPy, no JAX dispatch.
+    mu = float(gauge_factor(np.asarray(bl.c1), np.asarray(bl.c2), float(h_m)))
     if mu == 0.0 or not np.isfinite(mu):
         raise ValueError(
             f"mu = P2(-h_m) - P1(h_m) is {mu} for the initial `model` and `h_m` = {h_m}: "
