@@ -10,6 +10,7 @@ import dataclasses
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._core.buckets import padded_records, should_bucket
@@ -35,7 +36,8 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
                      h_m=None, max_steps: int = 256, rtol: float = 1e-7,
                      atol: float = 1e-7, statistics: bool = True,
                      min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "zero",
-                     stable: bool = False, core_start: bool = False) -> RefineResult:
+                     stable: bool = False, core_start: bool = False,
+                     core_only=False) -> RefineResult:
     """Traceable core of :func:`refine`: no checks, never raises, result code in `.result`.
 
     ``stable=True`` searches within the stable linear blocks only (``A`` through its
@@ -58,7 +60,9 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     ``core_start=True`` (what :func:`refine` does) also solves on the core operator from
     the start itself and keeps the better of the two optima
     (:func:`hbjax._identify.refine_band.best_of_core_start`); multi-start fitting leaves
-    it off (each start is cheap and many).
+    it off (each start is cheap and many). ``core_only`` (a bool, or a traced boolean:
+    one compiled solve serves both) solves on the core operator from the start instead of
+    the labelled band (multi-start fitting's starts whose loop closes inside the data).
 
     ``recordings`` must already be a tuple of ``(v, y)`` float64 array pairs, or of padded
     records ``(v, y, n)`` (zero-padded to a bucket length, ``n`` recorded samples as an
@@ -74,6 +78,8 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower_is_p1(start, recordings))
     z0 = par.free(flatten_params(start))
     options = dict(max_steps=max_steps, rtol=rtol, atol=atol)
+    if core_only is not False:
+        par = eqx.tree_at(lambda p: p.core, par, jnp.asarray(core_only))
     if core_start:
         par, z, result, steps, ssr, ssr0, jtj = best_of_core_start(
             par, z0, recordings, criterion, statistics, options)

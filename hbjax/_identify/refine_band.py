@@ -59,7 +59,9 @@ def touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion,
     first sample whose output the crossing changes, and solve again from the projection
     (an active set, up to :data:`MAX_TOUCHES` levels: the constrained optimum, on which
     the labelled and the core operators agree). If the crossing still decides outputs
-    then (the data want a closing loop), finish on the core operator from there."""
+    then (the data want a closing loop), finish on the core operator from there. A solve
+    that is on the core operator from the start (``par.core``) stays on it: there is no
+    band to orient or touch."""
     ok = optx.RESULTS.successful
     par = eqx.tree_at(lambda p: (p.touch_x, p.touch_on), par,
                       (jnp.zeros(MAX_TOUCHES), jnp.zeros(MAX_TOUCHES, bool)),
@@ -67,7 +69,7 @@ def touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion,
     # The start's orientation of the band may be the wrong one (its branches crossed on
     # average over the data): take the optimum's, and solve again if it flips.
     lower = lower_is_p1(par.model(z), recordings)
-    flip = (lower != par.lower_is_p1) & (result == ok)
+    flip = (lower != par.lower_is_p1) & (result == ok) & ~par.core
     par = eqx.tree_at(lambda p: p.lower_is_p1, par, lower)
 
     def reoriented(_):
@@ -115,7 +117,7 @@ def touch_where_decisive(par, z, result, steps, ssr, jtj, recordings, criterion,
 
     z, result, steps, ssr, jtj = jax.lax.cond(need_core, on_core, as_is, None)
     par = eqx.tree_at(lambda p: (p.core, p.touch_on), par,
-                      (need_core, par.touch_on & ~need_core))
+                      (need_core | par.core, par.touch_on & ~need_core))
     # The touches are active inequalities, not knowledge: the covariance is that of the
     # unconstrained parameters at the constrained optimum (a constrained Gauss-Newton
     # matrix would claim the extrapolated branch pinned by the touch).
