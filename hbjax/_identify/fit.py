@@ -4,7 +4,7 @@ The cost is non-convex in the backlash parameters (which input samples are insid
 changes with the band), so ``fit`` draws diverse backlash shapes, solves the linear block for
 each by least squares (the regression is linear in ``a, b`` once ``u`` is known: the
 separable structure Bai (2002) exploits), and refines the starts one after the other inside
-one compiled ``jax.lax.map``.
+one compiled ``jax.lax.scan``.
 """
 
 import equinox as eqx
@@ -306,9 +306,13 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     two decades of the input range, random offset and curvature), takes the linear block
     by least squares given that band, and is refined by :func:`hbjax.refine`'s
     Levenberg–Marquardt; the ``starts`` refinements run one after the other inside one
-    compiled program (``jax.lax.map``: on a CPU each start stops at its own convergence and
-    takes only its own branches, which ``vmap`` would not). The best converged local
-    optimum is returned with the spread of all of them.
+    compiled program (``jax.lax.scan``: on a CPU each start stops at its own convergence and
+    takes only its own branches, which ``vmap`` would not). The last quarter of the starts
+    (:func:`closing_count`) instead close the best open start's loop inside the data
+    (:func:`closing_band`) and are solved on the core operator ``L = min, H = max``: where
+    the true branches meet or cross inside the data, the labelled band of the open starts
+    reopens the loop and every one of them can end in the same local minimum. The best
+    converged local optimum is returned with the spread of all of them.
 
     Every start searches within the stable linear blocks only (assumption A3): ``A`` is
     parametrised by its reflection coefficients ``k_i = tanh(zeta_i)`` (Levinson step-up,
