@@ -38,16 +38,6 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None, host: b
             raise TypeError(f"`{name}` must be a numeric array, got dtype {arr.dtype}.")
         if np.iscomplexobj(arr):
             raise TypeError(f"`{name}` must be real, got complex dtype {arr.dtype}.")
-        if host and not isinstance(x, jax.Array):
-            if dtype is not None:
-                arr = arr.astype(dtype, copy=False)
-            elif not np.issubdtype(arr.dtype, np.inexact):
-                arr = arr.astype(jnp.result_type(float))
-            if ndim is not None and arr.ndim != ndim:
-                raise ValueError(
-                    f"`{name}` must be a {ndim}-D array, got shape {tuple(arr.shape)}."
-                )
-            return arr
     elif not (jnp.issubdtype(x.dtype, jnp.floating) or jnp.issubdtype(x.dtype, jnp.integer)
               or x.dtype == jnp.bool_):
         # A traced array is checked by its dtype at trace time: a complex (or key) tracer
@@ -55,10 +45,13 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None, host: b
         kind = "real, got complex" if jnp.issubdtype(x.dtype, jnp.complexfloating) else \
             "a numeric array, got"
         raise TypeError(f"`{name}` must be {kind} dtype {x.dtype}.")
-    out = jnp.asarray(x)
+    # NumPy operations on host data that stays there; JAX's otherwise (same casts, same check).
+    on_host = host and not is_traced(x) and not isinstance(x, jax.Array)
+    xp = np if on_host else jnp
+    out = arr if on_host else jnp.asarray(x)
     if dtype is not None:
         out = out.astype(dtype)
-    elif not jnp.issubdtype(out.dtype, jnp.inexact):
+    elif not xp.issubdtype(out.dtype, xp.inexact):
         out = out.astype(jnp.result_type(float))
     if ndim is not None and out.ndim != ndim:
         raise ValueError(

@@ -159,6 +159,22 @@ def _prediction_ssr(model, records):
     return sum(float(np.sum((y - predict_numpy(sys, v, y)) ** 2)) for v, y in records)
 
 
+def _crossing_case(rng, *, n, m, length):
+    """A system of the independent generator whose branches cross inside the input range,
+    a random input of `length` samples and its output with equation noise 1 % of the
+    noise-free output's range: ``(system, v, y, sigma)``."""
+    from tests.generators.paper_class import (
+        INPUT_KINDS, random_closing_loop_system, random_input)
+
+    sys = random_closing_loop_system(rng, n=n, m=m, kind="cross")
+    v = random_input(rng, INPUT_KINDS[int(rng.integers(len(INPUT_KINDS)))], length,
+                     sys["scale"])
+    free, _ = simulate_numpy(sys, v)
+    sigma = 0.01 * float(np.ptp(free))
+    y, _ = simulate_numpy(sys, v, sigma * rng.normal(size=v.size))
+    return sys, v, y, sigma
+
+
 @pytest.mark.slow
 def test_closing_loops_refined_from_the_truth_stay_at_its_cost():
     """Random systems whose branches meet or cross inside the input range (independent
@@ -168,19 +184,13 @@ def test_closing_loops_refined_from_the_truth_stay_at_its_cost():
     system for a model without the crossing (370 sigma^2 above the truth's cost)."""
     from scipy.stats import chi2
 
-    from tests.generators.paper_class import (
-        INPUT_KINDS, random_closing_loop_system, random_input, to_hbjax)
+    from tests.generators.paper_class import to_hbjax
 
     rng = np.random.default_rng(2026)
     excess = []
     for _ in range(4):
         # one shape (na = nb = 2, m = 3, T = 3000): one compilation for the four systems
-        sys = random_closing_loop_system(rng, n=2, m=3, kind="cross")
-        v = random_input(rng, INPUT_KINDS[int(rng.integers(len(INPUT_KINDS)))], 3000,
-                         sys["scale"])
-        free, _ = simulate_numpy(sys, v)
-        sigma = 0.01 * float(np.ptp(free))
-        y, _ = simulate_numpy(sys, v, sigma * rng.normal(size=v.size))
+        sys, v, y, sigma = _crossing_case(rng, n=2, m=3, length=3000)
         truth = to_hbjax(sys)
         res = hbjax.refine(truth, [(v, y)], throw=False)
         if res.message != "success":
@@ -201,18 +211,12 @@ def test_fit_on_crossing_loops_reports_success_only_at_the_optimum():
     6 systems (6 and 13 times the allowance above the truth), reported as success."""
     from scipy.stats import chi2
 
-    from tests.generators.paper_class import (
-        INPUT_KINDS, random_closing_loop_system, random_input, to_hbjax)
+    from tests.generators.paper_class import to_hbjax
 
     rng = np.random.default_rng(7)
     excess = []
     for i in range(6):
-        sys = random_closing_loop_system(rng, n=1, m=4, kind="cross")
-        v = random_input(rng, INPUT_KINDS[int(rng.integers(len(INPUT_KINDS)))], 4000,
-                         sys["scale"])
-        free, _ = simulate_numpy(sys, v)
-        sigma = 0.01 * float(np.ptp(free))
-        y, _ = simulate_numpy(sys, v, sigma * rng.normal(size=v.size))
+        sys, v, y, sigma = _crossing_case(rng, n=1, m=4, length=4000)
         res = hbjax.fit([(v, y)], na=sys["na"], nb=len(sys["b"]), m=4,
                         key=jax.random.PRNGKey(i), throw=False, progress=False)
         if res.message != "success":
