@@ -7,6 +7,8 @@ separable structure Bai (2002) exploits), and refines the starts one after the o
 one compiled ``jax.lax.scan``.
 """
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -170,20 +172,61 @@ def _swap_covariance(cov, swap, na, nb, m):
     return jnp.where(swap, swapped, cov)
 
 
-def _polish_best(res, ok, costs, best, recordings, **options):
-    """The starts solve on the labelled band only (cheap, many); the best one is refined
-    once more as `refine` does, with the core operator's solve as well. Where the branches
-    meet or cross inside the data, the labelled band cannot follow the loop and the best
-    start is a local minimum the core solve leaves (measured on random closing-loop
-    systems: 210-1600 sigma^2 above the true system's cost -> at it). The refined start
-    replaces the best one where it succeeds with a lower cost (or none had succeeded)."""
-    polished = refine_traceable(jax.tree_util.tree_map(lambda x: x[best], res.model),
-                                recordings, h_m=None, statistics=False, stable=True,
-                                core_start=True, **options)
+def _chosen(r, recordings, na: int, nb: int, m: int) -> dict:
+    """The fields of one start's :class:`RefineResult` as :class:`FitResult` reports them:
+    labels made canonical (:func:`canonical_labels`), with the covariance, the identified
+    flags and the active ranges swapped alongside."""
+    model, swap = canonical_labels(r.model, recordings)
+    ident = r.identified
+    return dict(
+        model=model, result=r.result, stats=r.stats,
+        covariance=_swap_covariance(r.covariance, swap, na, nb, m), noise_std=r.noise_std,
+        branches_cross=r.branches_cross, sim_fit=r.sim_fit, sim_fit_pooled=r.sim_fit_pooled,
+        stable=r.stable, identified=jnp.where(swap, ident[_swap_perm(na, nb, m)], ident),
+        active_ranges=jnp.where(swap, r.active_ranges[::-1], r.active_ranges),
+        data_range=r.data_range, core_finish=r.core_finish)
+
+
+def _starts_summary(ok, costs, params, best):
+    """``(spread, hit_rate)`` of the starts: the standard deviation of the converged local
+    optima per parameter, and the fraction of starts that reached the best cost."""
+    n_ok = jnp.maximum(jnp.sum(ok), 1)
+    mean = jnp.sum(jnp.where(ok[:, None], params, 0.0), axis=0) / n_ok
+    spread = jnp.sqrt(jnp.sum(jnp.where(ok[:, None], (params - mean) ** 2, 0.0), axis=0) / n_ok)
+    hits = ok & (costs <= costs[best] * (1 + 1e-6))
+    return spread, jnp.sum(hits) / ok.shape[0]
+
+
+def polish_best(res: "FitResult", recordings, *, criterion, max_steps, min_sim_fit,
+                initial_state, rtol: float = 1e-7, atol: float = 1e-7) -> "FitResult":
+    """The starts solve on the labelled band (or, the closing ones, the core operator) only;
+    the best one is refined once more as `refine` does, with the core operator's solve as
+    well. Where the branches meet or cross inside the data, the labelled band cannot follow
+    the loop and the best start can be a local minimum the core solve leaves (measured on
+    random closing-loop systems: 210-1600 sigma^2 above the true system's cost -> at it).
+    The refined start replaces the best one where it succeeds with a lower cost (or none
+    had succeeded). Traceable; :func:`fit` compiles it on its own, and runs it only where
+    it can change the result."""
+    na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
+    best = res.best_index
+    polished = refine_traceable(res.model, recordings, criterion=criterion, h_m=None,
+                                max_steps=max_steps, rtol=rtol, atol=atol, statistics=False,
+                                min_sim_fit=min_sim_fit, initial_state=initial_state,
+                                stable=True, core_start=True)
+    ok = res.starts_result == result_code(RESULTS.successful)
     take = (polished.result == RESULTS.successful) & (
-        ~ok[best] | (polished.stats["cost"] < costs[best] * (1 - 1e-9)))
-    return jax.tree_util.tree_map(
-        lambda a, b: a.at[best].set(jnp.where(take, b, a[best])), res, polished)
+        ~ok[best] | (polished.stats["cost"] < res.starts_costs[best] * (1 - 1e-9)))
+    new = _chosen(polished, recordings, na, nb, m)
+    old = {k: getattr(res, k) for k in new}
+    fields = jax.tree_util.tree_map(lambda a, b: jnp.where(take, a, b), new, old)
+    ok = ok.at[best].set(ok[best] | take)
+    costs = res.starts_costs.at[best].set(
+        jnp.where(take, polished.stats["cost"], res.starts_costs[best]))
+    params = res.starts_params.at[best].set(flatten_params(fields["model"]))
+    codes = res.starts_result.at[best].set(result_code(fields["result"]))
+    spread, hit_rate = _starts_summary(ok, costs, params, best)
+    return dataclasses.replace(res, **fields, starts_costs=costs, starts_params=params,
+                               starts_result=codes, spread=spread, hit_rate=hit_rate)
 
 
 def _score(res):
@@ -218,7 +261,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
     """Traceable core of :func:`fit` (recordings a tuple of ``(v, y)`` arrays).
 
     ``polish=False`` leaves out the best start's refinement with the core operator's solve
-    (:func:`_polish_best`), which changes nothing unless the best start's branches meet
+    (:func:`polish_best`), which changes nothing unless the best start's branches meet
     inside the data or no start succeeded: :func:`fit` runs without it first and again
     with it only then, so that ordinary data do not compile the core solve."""
     scale = data_scale(recordings)
@@ -266,35 +309,23 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
                           (keys, positions, jnp.arange(starts)))
 
     ok, costs, best = _best_start(res)
-    if polish:
-        res = _polish_best(res, ok, costs, best, recordings, criterion=criterion,
-                           max_steps=max_steps, rtol=rtol, atol=atol,
-                           min_sim_fit=min_sim_fit, initial_state=initial_state)
-        ok, costs, best = _best_start(res)
-    pick = lambda x: x[best]  # noqa: E731
-    model, swap = canonical_labels(jax.tree_util.tree_map(pick, res.model), recordings)
     params = jax.vmap(lambda mdl: flatten_params(canonical_labels(mdl, recordings)[0]))(
         res.model)
-    n_ok = jnp.maximum(jnp.sum(ok), 1)
-    mean = jnp.sum(jnp.where(ok[:, None], params, 0.0), axis=0) / n_ok
-    spread = jnp.sqrt(jnp.sum(jnp.where(ok[:, None], (params - mean) ** 2, 0.0), axis=0) / n_ok)
-    hits = ok & (costs <= costs[best] * (1 + 1e-6))
-    perm = _swap_perm(na, nb, m)
-    ident = res.identified[best]
-    active = res.active_ranges[best]
-    return FitResult(
-        model, jax.tree_util.tree_map(pick, res.result),
-        jax.tree_util.tree_map(pick, res.stats),
-        _swap_covariance(res.covariance[best], swap, na, nb, m), res.noise_std[best],
-        res.branches_cross[best], res.sim_fit[best], res.sim_fit_pooled[best],
-        res.stable[best], jnp.where(swap, ident[perm], ident),
-        jnp.where(swap, active[::-1], active), res.data_range[best], res.core_finish[best],
-        costs, params, result_code(res.result), spread, jnp.sum(hits) / starts, best,
-        criterion, "static_gain", initial_state,
-    )
+    spread, hit_rate = _starts_summary(ok, costs, params, best)
+    out = FitResult(
+        **_chosen(jax.tree_util.tree_map(lambda x: x[best], res), recordings, na, nb, m),
+        starts_costs=costs, starts_params=params, starts_result=result_code(res.result),
+        spread=spread, hit_rate=hit_rate, best_index=best, criterion=criterion,
+        gauge="static_gain", initial_state=initial_state)
+    if polish:
+        out = polish_best(out, recordings, criterion=criterion, max_steps=max_steps,
+                          rtol=rtol, atol=atol, min_sim_fit=min_sim_fit,
+                          initial_state=initial_state)
+    return out
 
 
 _fit_jit = eqx.filter_jit(fit_traceable)
+_polish_jit = eqx.filter_jit(polish_best)
 
 
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
@@ -377,10 +408,15 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                        initial_state=initial_state)
         traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
         res = _fit_jit(recs, key, polish=traced, **options)
-        if not traced and (bool(res.branches_cross) or res.result != RESULTS.successful):
+        # A closing start was solved on the core operator already.
+        best_closing = int(res.best_index) >= starts - closing_count(starts, m)
+        if not traced and ((bool(res.branches_cross) and not best_closing)
+                           or res.result != RESULTS.successful):
             # Only a loop closing inside the data (or no success) needs the core solve of
-            # the best start: the same starts again, with it (fit_traceable's `polish`).
-            res = _fit_jit(recs, key, polish=True, **options)
+            # the best start: compiled on its own, from the starts' result.
+            res = _polish_jit(res, recs, criterion=criterion, max_steps=max_steps,
+                              min_sim_fit=options["min_sim_fit"],
+                              initial_state=initial_state)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
