@@ -5,8 +5,16 @@ prediction error of the extended simulator, all candidates at once under ``jax.v
 A candidate is data: a start ``theta0`` (full extended vector), the discrete values
 ``ints = [delay, change time]`` and a selection matrix ``S`` (columns = the free
 parameters, scaled); the fitted vector is ``theta0 + S delta``. So one compiled solver
-serves every effect of a base structure and record length, and compiled code is cached
-across calls by ``eqx.filter_jit``.
+serves every effect of a base structure, and compiled code is cached across calls by
+``eqx.filter_jit``.
+
+Records are padded to a length bucket (:mod:`hbjax._core.buckets`) by the functions
+below, which callers use with the recorded signals: every error is causal, so the
+recorded samples are computed as without the padding, and the criterion's window
+``[burn, n)`` is a runtime value that masks the padded samples (and the start-up burn-in)
+out of every sum. One compiled program therefore serves every record length of a bucket
+and every burn-in, where each new length (about 30 s of compilation on a 2-core CPU)
+used to cost a fresh one.
 """
 
 from __future__ import annotations
@@ -14,50 +22,84 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
+
+from .._core.buckets import bucket_length
 
 from .._identify.lm import levenberg_marquardt
 from .effect_base import base_model, term_error
 from .kernel import Layout, fast_jacobian, fast_prediction_error, play_gather, prediction_error
 
 
-def _masked_eps(lay, theta, ints, consts, v, y, burn, output_static=True,
+def _padded(x, size: int) -> np.ndarray:
+    """``x`` with its last value repeated up to ``size`` samples (a held input and output
+    keep the padded part of every recursion finite; it is masked out or cut off)."""
+    x = np.asarray(x)
+    return np.pad(x, (0, size - x.shape[0]), mode="edge")
+
+
+def _bucketed(v, y, burn: int = 0):
+    """``(v, y, window)``: the record padded to its length bucket and the criterion's
+    window ``[burn, n)`` as an integer array (a runtime value of the compiled solvers)."""
+    n = int(np.shape(v)[0])
+    size = bucket_length(n)
+    return (jnp.asarray(_padded(v, size)), jnp.asarray(_padded(y, size)),
+            jnp.asarray([int(burn), n]))
+
+
+def _in_window(T, window):
+    t = jnp.arange(T)
+    return (t >= window[0]) & (t < window[1])
+
+
+def _masked(e, window):
+    """Errors outside the criterion's window set to zero; a diverging candidate's (an
+    unstable linear block) large but finite, so it cannot poison a batch."""
+    e = jnp.where(_in_window(e.shape[0], window), e, 0.0)
+    return jnp.where(jnp.isfinite(e), e, 1e6)
+
+
+def _masked_eps(lay, theta, ints, consts, v, y, window, output_static=True,
                 criterion="prediction"):
-    eps = fast_prediction_error(lay, theta, ints, consts, v, y, output_static=output_static,
-                                criterion=criterion)
-    eps = jnp.where(jnp.arange(y.shape[0]) >= burn, eps, 0.0)
-    # A diverging candidate (an unstable linear block) must not poison the batch.
-    return jnp.where(jnp.isfinite(eps), eps, 1e6)
+    return _masked(fast_prediction_error(lay, theta, ints, consts, v, y,
+                                         output_static=output_static, criterion=criterion),
+                   window)
 
 
-def _masked_jacobian(lay, theta, S, ints, consts, v, y, burn, output_static, criterion):
+def _masked_jacobian(lay, theta, S, ints, consts, v, y, window, output_static, criterion):
     """Jacobian of :func:`_masked_eps` in the directions ``S``: written out by hand where
     the output map is the identity, forward-mode autodiff otherwise."""
     if output_static:
-        J = jax.jacfwd(lambda d: _masked_eps(lay, theta + S @ d, ints, consts, v, y, burn,
+        J = jax.jacfwd(lambda d: _masked_eps(lay, theta + S @ d, ints, consts, v, y, window,
                                              True, criterion))(jnp.zeros(S.shape[1]))
     else:
         J = fast_jacobian(lay, theta, ints, consts, v, y, criterion=criterion) @ S
-        J = jnp.where((jnp.arange(y.shape[0]) >= burn)[:, None], J, 0.0)
+        J = jnp.where(_in_window(y.shape[0], window)[:, None], J, 0.0)
     return jnp.where(jnp.isfinite(J), J, 0.0)
 
 
-@eqx.filter_jit
 def fit_batch(lay: Layout, theta0, S, ints, consts, v, y, burn: int, max_steps: int,
               output_static: bool, criterion: str = "prediction"):
     """Levenberg-Marquardt from each ``theta0[i]`` over the columns of ``S[i]``.
 
     Shapes: ``theta0 (B, P)``, ``S (B, P, K)``, ``ints (B, 2)``; ``v, y`` the fitting
-    segment. Returns ``(theta (B, P), steps (B,), converged (B,))``.
+    segment, samples from ``burn`` on in the criterion. Returns ``(theta (B, P), steps
+    (B,), converged (B,))``.
     """
+    return _fit_batch(lay, theta0, S, ints, consts, *_bucketed(v, y, burn), max_steps,
+                      output_static, criterion)
 
+
+@eqx.filter_jit
+def _fit_batch(lay, theta0, S, ints, consts, v, y, window, max_steps, output_static, criterion):
     def one(th0, s, it):
         def eps(delta):
-            return _masked_eps(lay, th0 + s @ delta, it, consts, v, y, burn, output_static,
+            return _masked_eps(lay, th0 + s @ delta, it, consts, v, y, window, output_static,
                                criterion)
 
         def jac(delta):
-            return _masked_jacobian(lay, th0 + s @ delta, s, it, consts, v, y, burn,
+            return _masked_jacobian(lay, th0 + s @ delta, s, it, consts, v, y, window,
                                     output_static, criterion)
 
         value, steps, ok = _least_squares(eps, jac, s.shape[1], max_steps)
@@ -75,18 +117,28 @@ def _least_squares(eps, jac, n: int, max_steps: int):
     return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
 
-@eqx.filter_jit
 def sse_batch(lay: Layout, theta, ints, consts, v, y, burn: int, criterion: str = "prediction"):
-    """Sum of squared prediction errors for a batch of extended parameter vectors."""
-    return jax.vmap(lambda th, it: jnp.sum(
-        _masked_eps(lay, th, it, consts, v, y, burn, True, criterion) ** 2))(theta, ints)
+    """Sum of squared prediction errors (samples from ``burn`` on) for a batch of extended
+    parameter vectors."""
+    return _sse_batch(lay, theta, ints, consts, *_bucketed(v, y, burn), criterion)
 
 
 @eqx.filter_jit
+def _sse_batch(lay, theta, ints, consts, v, y, window, criterion):
+    return jax.vmap(lambda th, it: jnp.sum(
+        _masked_eps(lay, th, it, consts, v, y, window, True, criterion) ** 2))(theta, ints)
+
+
 def evaluate_batch(lay: Layout, theta, ints, consts, v, y, criterion: str = "prediction"):
     """``(fast eps, exact eps, y_sim, u_used)`` over the whole record for a batch of
-    candidates (the exact ones from the simulator's scan)."""
+    candidates (the exact ones from the simulator's scan), each ``(B, T)``."""
+    T = int(np.shape(v)[0])
+    vp, yp, _ = _bucketed(v, y)
+    return tuple(a[:, :T] for a in _evaluate_batch(lay, theta, ints, consts, vp, yp, criterion))
 
+
+@eqx.filter_jit
+def _evaluate_batch(lay, theta, ints, consts, v, y, criterion):
     def one(th, it):
         return (fast_prediction_error(lay, th, it, consts, v, y, criterion=criterion),
                 *prediction_error(lay, th, it, consts, v, y))
@@ -94,35 +146,42 @@ def evaluate_batch(lay: Layout, theta, ints, consts, v, y, criterion: str = "pre
     return jax.vmap(one)(theta, ints)
 
 
-@eqx.filter_jit
 def jacobian(lay: Layout, theta, S, ints, consts, v, y, burn: int, criterion: str = "prediction"):
-    """``(eps, d eps / d delta)`` at ``delta = 0`` (for the change-point scan)."""
+    """``(eps, d eps / d delta)`` at ``delta = 0`` (for the change-point scan); rows
+    before ``burn`` are zero."""
+    T = int(np.shape(v)[0])
+    eps, J = _jacobian(lay, theta, S, ints, consts, *_bucketed(v, y, burn), criterion)
+    return eps[:T], J[:T]
 
-    eps = _masked_eps(lay, theta, ints, consts, v, y, burn, False, criterion)
-    return eps, _masked_jacobian(lay, theta, S, ints, consts, v, y, burn, False, criterion)
+
+@eqx.filter_jit
+def _jacobian(lay, theta, S, ints, consts, v, y, window, criterion):
+    eps = _masked_eps(lay, theta, ints, consts, v, y, window, False, criterion)
+    return eps, _masked_jacobian(lay, theta, S, ints, consts, v, y, window, False, criterion)
 
 
 # --- the generic path: effects that are not slots of the kernel ------------------------
 
 
-def _masked(e, burn):
-    e = jnp.where(jnp.arange(e.shape[0]) >= burn, e, 0.0)
-    return jnp.where(jnp.isfinite(e), e, 1e6)
-
-
-@eqx.filter_jit
 def fit_terms(cls, lay: Layout, theta0, S, params0, scales, consts, v, y, burn: int,
               max_steps: int, criterion: str = "prediction"):
     """Levenberg-Marquardt of a generic effect ``cls`` (:func:`term_error`) jointly with
     the base parameters (columns of ``S``), Jacobian by ``jax.jacfwd``. Returns
     ``(theta, params, steps, converged)``."""
+    return _fit_terms(cls, lay, theta0, S, params0, scales, consts, *_bucketed(v, y, burn),
+                      max_steps, criterion)
+
+
+@eqx.filter_jit
+def _fit_terms(cls, lay, theta0, S, params0, scales, consts, v, y, window, max_steps,
+               criterion):
     K = S.shape[1]
 
     def split(delta):
         return theta0 + S @ delta[:K], params0 + scales * delta[K:]
 
     def eps(delta):
-        return _masked(term_error(cls, lay, *split(delta), consts, v, y, criterion), burn)
+        return _masked(term_error(cls, lay, *split(delta), consts, v, y, criterion), window)
 
     def jac(delta):
         J = jax.jacfwd(eps)(delta)
@@ -133,18 +192,30 @@ def fit_terms(cls, lay: Layout, theta0, S, params0, scales, consts, v, y, burn: 
     return theta, params, steps, ok
 
 
-@eqx.filter_jit
 def sse_terms(cls, lay: Layout, theta, params, consts, v, y, burn: int,
               criterion: str = "prediction"):
-    """Sum of squared errors of a generic effect for a batch of parameter starts."""
-    return jax.vmap(lambda p: jnp.sum(_masked(
-        term_error(cls, lay, theta, p, consts, v, y, criterion), burn) ** 2))(params)
+    """Sum of squared errors (samples from ``burn`` on) of a generic effect for a batch of
+    parameter starts."""
+    return _sse_terms(cls, lay, theta, params, consts, *_bucketed(v, y, burn), criterion)
 
 
 @eqx.filter_jit
+def _sse_terms(cls, lay, theta, params, consts, v, y, window, criterion):
+    return jax.vmap(lambda p: jnp.sum(_masked(
+        term_error(cls, lay, theta, p, consts, v, y, criterion), window) ** 2))(params)
+
+
 def evaluate_terms(cls, lay: Layout, theta, params, consts, v, y, criterion="prediction"):
     """``(fitting error, exact prediction error, y_sim, u)`` of a generic effect over the
     whole record, as :func:`evaluate_batch` gives for kernel effects."""
+    T = int(np.shape(v)[0])
+    vp, yp, _ = _bucketed(v, y)
+    return tuple(a[:T] for a in _evaluate_terms(cls, lay, theta, params, consts, vp, yp,
+                                                criterion))
+
+
+@eqx.filter_jit
+def _evaluate_terms(cls, lay, theta, params, consts, v, y, criterion):
     if getattr(cls, "fit_error", None) is not None:  # scales from the context's consts
         effect = cls.from_params(base_model(lay, theta), params, consts)
     else:
