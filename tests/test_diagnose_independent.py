@@ -1,6 +1,7 @@
 """Mismatch diagnosis on data it was not tuned on: the independent concealed-effect
-generator (tests/generators/concealed_effects.py) keeps its promises, and (xfail until the
-diagnosis meets it) the accuracy target on a small sample of its cases."""
+generator (tests/generators/concealed_effects.py) keeps its promises; on a small sample of
+its cases the diagnosis holds its measured accuracy, and the accuracy target (a strict
+xfail: it fails the suite once it passes, so that the marker is removed) is tracked."""
 
 import collections
 import inspect
@@ -125,13 +126,11 @@ def _diagnose(case):
     return hbjax.diagnose(case["nominal_model"], case["v"], case["y"], **kwargs)
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="accuracy target on independent data not yet met "
-                   "(benchmarks/diagnose_suite_baseline.txt)")
-def test_diagnosis_accuracy_on_independent_cases():
-    # A small sample: one case per effect, three clean ones, two base structures and one
-    # record length (so that compiled solvers are shared); benchmarks/diagnose_suite.py runs
-    # the full variety.
+@pytest.fixture(scope="module")
+def independent_sample():
+    """A small sample: one case per effect, three clean ones, two base structures and one
+    record length (so that compiled solvers are shared); benchmarks/diagnose_suite.py runs
+    the full variety. Returns ``({effect: [top finding]}, [findings per clean case])``."""
     rng = np.random.default_rng(2024)
     structures = [dict(na=2, nb=2, m=3), dict(na=3, nb=2, m=2)]
 
@@ -143,8 +142,28 @@ def test_diagnosis_accuracy_on_independent_cases():
         d = _diagnose(case(effect, i))
         tops[effect].append(d.best.effect if d.best is not None else None)
     clean_findings = [len(_diagnose(case(None, i)).findings) for i in range(3)]
+    return tops, clean_findings
+
+
+@pytest.mark.slow
+def test_diagnosis_on_independent_cases_holds_its_measured_level(independent_sample):
+    # Measured on this sample: 11 of 15 effects named (the misses, ambiguous at this
+    # length and noise, are listed in benchmarks/RESULTS.md) and no finding on the clean
+    # records. The floor sits two cases below, so the test fails on a regression, not
+    # on one borderline decision moving.
+    tops, clean_findings = independent_sample
+    overall = np.mean([t == e for e, ts in tops.items() for t in ts])
+    assert overall >= 9 / 15, (overall, dict(tops))
+    assert max(clean_findings) <= 1, clean_findings  # the clean-record target, met
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open target of the diagnosis: top-1 >= 95% overall "
+                   "and >= 85% per effect on independent data (11/15 on this sample; "
+                   "benchmarks/RESULTS.md has the large study)")
+def test_diagnosis_accuracy_target_on_independent_cases(independent_sample):
+    tops, _ = independent_sample
     hits = {e: sum(t == e for t in ts) / len(ts) for e, ts in tops.items()}
     overall = np.mean([t == e for e, ts in tops.items() for t in ts])
     assert overall >= 0.95, (overall, dict(tops))
     assert min(hits.values()) >= 0.85, hits
-    assert max(clean_findings) <= 1, clean_findings

@@ -79,8 +79,9 @@ def test_periodic_disturbance_at_an_input_harmonic_is_not_unrelated():
 
 
 def _open(effect):
+    # strict: the day the target is met the suite fails, and the marker goes
     return pytest.param(effect, marks=pytest.mark.xfail(
-        strict=False, reason=f"open target: with every effect offered, {effect} was the best "
+        strict=True, reason=f"open target: with every effect offered, {effect} was the best "
         "finding on 1 of these 3 seeds when last measured"))
 
 
