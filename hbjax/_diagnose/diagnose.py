@@ -255,7 +255,18 @@ def _start_from_the_refit(ctx, candidates, v_fit, y_fit, criterion):
     refit.starts = [(theta[0], ints[0])]  # its phase-two fit stops at once
     for c in candidates:
         if c is not refit:
-            c.starts = list(c.starts) + [(_with_base(th, base), it) for th, it in c.starts]
+            c.starts = list(c.starts) + [(_with_base(th, base), it) for th, it in c.starts
+                                         if not _frees_no_level(ctx.lay, c, th)]
+
+
+def _frees_no_level(lay, candidate, theta):
+    """A start of a clip candidate with every level open: it frees no level, so with the
+    refit's base it *is* the refit, whose criterion every clip start that is not yet at
+    its level exceeds; it would win the choice of start and the candidate would never
+    clip."""
+    theta = np.asarray(theta)
+    return bool(candidate.levels) and not any(
+        np.isfinite(float(lay.get(theta, name)[0])) for name in candidate.levels)
 
 
 def _with_base(theta, base):
