@@ -178,10 +178,8 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                         eps_nom[:n_fit], burn, tests["change_scan"])
 
     bar.update(1)
-    # 2. Candidates: the refit first, then every other candidate may also start from the
-    # refit's base; choose each start by a batched criterion evaluation, then fit all.
+    # 2. Candidates: choose each start by a batched criterion evaluation, then fit all.
     candidates = cands.build(ctx, effects)
-    _start_from_the_refit(ctx, candidates, v_fit, y_fit, criterion)
     theta0, ints = choose_starts(ctx, candidates, v_fit, y_fit, criterion)
     bar.update(1)
     theta_fit, steps, ok = fit_candidates(ctx, candidates, theta0, ints, v_fit, y_fit, criterion,
@@ -232,47 +230,6 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                      n_fit, T - n_fit, model, v, y, verdict=verdict,
                      unexplained=_jsonable(detail) if verdict == "unexplained" else {},
                      failed=failed, split=_jsonable(split_report))
-
-
-def _start_from_the_refit(ctx, candidates, v_fit, y_fit, criterion):
-    """Fit the refit (``parameter_mismatch``: the base parameters alone) and give every
-    other candidate, besides its own starts, the same starts with the refit's base
-    parameters. Every candidate extends the refit (its effect switched off is the
-    refit), so started there its fit can only lower the criterion: the comparison with
-    the refit (BIC, held-out free run) is between nested models at their optima. Started
-    from the nominal model only, a candidate had to redo the refit's path within the
-    solver's step budget as well: on records where the nominal model was far off, every
-    candidate stopped at the step limit and an extension that contains the truth
-    simulated worse than the refit (a branch-degree case: 87.7% against 97.6%
-    held-out)."""
-    names = [c.effect for c in candidates]
-    refit = candidates[names.index("parameter_mismatch")]
-    theta0, ints = choose_starts(ctx, [refit], v_fit, y_fit, criterion)
-    theta, _, _ = fit_candidates(ctx, [refit], theta0, ints, v_fit, y_fit, criterion, MAX_STEPS)
-    base = np.asarray(theta[0])[:ctx.lay.p_base]
-    if not np.all(np.isfinite(base)):
-        return
-    refit.starts = [(theta[0], ints[0])]  # its phase-two fit stops at once
-    for c in candidates:
-        if c is not refit:
-            c.starts = list(c.starts) + [(_with_base(th, base), it) for th, it in c.starts
-                                         if not _frees_no_level(ctx.lay, c, th)]
-
-
-def _frees_no_level(lay, candidate, theta):
-    """A start of a clip candidate with every level open: it frees no level, so with the
-    refit's base it *is* the refit, whose criterion every clip start that is not yet at
-    its level exceeds; it would win the choice of start and the candidate would never
-    clip."""
-    theta = np.asarray(theta)
-    return bool(candidate.levels) and not any(
-        np.isfinite(float(lay.get(theta, name)[0])) for name in candidate.levels)
-
-
-def _with_base(theta, base):
-    out = np.array(theta)
-    out[:base.shape[0]] = base
-    return jnp.asarray(out)
 
 
 def _missing_input(model, y, ysim_all, stats, names, channels, n_fit, burn, criterion, table):
