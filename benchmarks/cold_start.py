@@ -19,9 +19,10 @@ loaded machine inflates far less than the wall time.
   system with a 15% larger gain of B (a parameter mismatch), all effects.
 - CLI: ``hbjax identify fit --na 2 --nb 2 --m 3`` on the cascaded-tanks estimation record
   (1024 samples, ``uEst``/``yEst``), 32 starts.
-- New length, warm process: ``simulate`` and ``refine`` at N = 5000 (compile), again at
-  5000 (warm), then at N = 5001 and N = 4900 (same bucket, 5120): the extra time of the
-  new length over the warm call.
+- New length, warm process: ``simulate``, ``refine`` and ``diagnose`` (nominal default
+  system on a recording of a 10% different one) at N = 5000 (compile), again at 5000
+  (warm), then at N = 5001 and N = 4900 (same buckets: 5120 for the record, 3584 for
+  the diagnosis's fitting part): the extra time of the new length over the warm call.
 """
 
 import json
@@ -85,8 +86,13 @@ NEW_LENGTH = PRELUDE + textwrap.dedent("""
     model = hbjax.default_system()
     v, y = record(7000, seed=2)  # another bucket: simulate at 5000 compiles afresh
     init = perturbed(model, 1.1)
+    def diagnosed(n):
+        hbjax.diagnose(model, v[:n], y[:n], progress=False)
+        return jax.numpy.zeros(())  # diagnose returns host data: nothing left to wait for
+
     for name, call in (("simulate", lambda n: hbjax.simulate(model, v[:n])),
-                       ("refine", lambda n: hbjax.refine(init, (v[:n], y[:n])).model)):
+                       ("refine", lambda n: hbjax.refine(init, (v[:n], y[:n])).model),
+                       ("diagnose", diagnosed)):
         times, cpu = [], []
         for n in (5000, 5000, 5001, 4900):
             t0, c0 = time.perf_counter(), time.process_time()
@@ -160,7 +166,9 @@ next column). Eager calls pad their records to length buckets (`docs/performance
 4900, 5000 and 5001 samples all run the program compiled for 5120. `refine` carries the
 recorded length as a runtime value and masks the padded samples out of the residuals, the
 Gram matrix, the band checks, the sample count and the fit figures; its results equal the
-unpadded ones (`tests/test_refine_buckets.py`).
+unpadded ones (`tests/test_refine_buckets.py`). `diagnose` pads its fitting part (3584)
+and its whole record the same way, with the criterion's window a runtime value
+(`tests/test_diagnose_buckets.py`).
 
 | call | first at N=5000 | warm at N=5000 | new N=5001 | extra | extra CPU | new N=4900 | <= 1 s |
 |---|---|---|---|---|---|---|---|

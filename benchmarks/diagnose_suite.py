@@ -112,6 +112,8 @@ def report(records, effects):
                      + (", ".join(f"{k} x{v}" for k, v in collections.Counter(
                          r["top"] for r in with_finding).most_common()) or "nothing"))
     lines.append("")
+    lines.extend(_breakdowns(ok))
+    lines.append("")
     lines.append(_confusion(records, effects))
     if errors:
         lines.append("")
@@ -119,6 +121,31 @@ def report(records, effects):
         for r in errors:
             lines.append(f"  {r['effect']} #{r['index']}: {r['error']}")
     return "\n".join(lines)
+
+
+def _breakdowns(records):
+    """Top-1 accuracy of the effect cases by input kind and by effect size (RMS change of
+    the noise-free output over the output noise std, as the generator measured it)."""
+    out = []
+    rows = [r for r in records if r.get("effect") is not None]
+    for title, key, groups in (
+            ("input kind", lambda r: r.get("input_kind"), None),
+            ("effect size (RMS / output noise std)",
+             lambda r: None if r.get("ratio") is None else
+             ("< 1.5" if r["ratio"] < 1.5 else "1.5-4" if r["ratio"] < 4 else ">= 4"),
+             ("< 1.5", "1.5-4", ">= 4"))):
+        seen = collections.defaultdict(list)
+        for r in rows:
+            k = key(r)
+            if k is not None:
+                seen[k].append(r.get("top") == r["effect"])
+        if not seen:
+            continue
+        order = groups or sorted(seen)
+        out.append(f"by {title}: " + "; ".join(
+            f"{k} {sum(seen[k])}/{len(seen[k])} ({100 * sum(seen[k]) / len(seen[k]):.0f}%)"
+            for k in order if seen[k]))
+    return out
 
 
 def _confusion(records, effects):
@@ -144,13 +171,14 @@ def _confusion(records, effects):
 
 def _records_from_log(path):
     """Per-case records from the ``[k/N] effect -> top ...`` lines of a run's output."""
-    pattern = re.compile(r"^\[\d+/\d+\] (\S+)\s+-> (\S+)\s")
+    pattern = re.compile(r"^\[\d+/\d+\] (\S+)\s+-> (\S+)\s+n=(\d+) (\S+) .*ratio=([\d.]+)")
     records = []
     for line in open(path):
         m = pattern.match(line)
         if m:
-            effect, top = (None if x == "None" else x for x in m.groups())
-            rec = dict(effect=effect, index=len(records))
+            effect, top = (None if x == "None" else x for x in m.groups()[:2])
+            rec = dict(effect=effect, index=len(records), n=int(m.group(3)),
+                       input_kind=m.group(4), ratio=float(m.group(5)))
             if top == "ERROR":
                 rec["error"] = "diagnose (see log)"
             else:
