@@ -36,11 +36,14 @@ NOISE_STD = 0.1
 # study (compilation) and `repeats` timed studies reusing the compiled chunk.
 _JAX_SCRIPT = textwrap.dedent("""
     import json, sys, time, jax, numpy as np, hbjax
+    jax.config.update("jax_enable_x64", True)
     R, T, repeats = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+    chunk = int(sys.argv[4]) or None
     m, d = hbjax.default_system(), hbjax.default_design()
     def study(seed):
         return hbjax.monte_carlo(m, d, noise_std=%r, lengths=[T], realisations=R,
-                                 key=jax.random.key(seed), progress=False, keep_estimates=True)
+                                 key=jax.random.key(seed), progress=False, keep_estimates=True,
+                                 chunk_size=chunk)
     t0 = time.perf_counter(); first = study(0); wall_first = time.perf_counter() - t0
     runs = []
     for k in range(repeats):
@@ -55,6 +58,7 @@ _JAX_SCRIPT = textwrap.dedent("""
 # child started by fork/exec can carry the parent's high-water mark).
 _MEMORY_SCRIPT = textwrap.dedent("""
     import json, re, sys, time, jax, hbjax
+    jax.config.update("jax_enable_x64", True)
     def hwm_kib():
         return int(re.search(r"VmHWM:\\s+(\\d+)", open("/proc/self/status").read()).group(1))
     R, T = int(sys.argv[1]), int(sys.argv[2])
@@ -71,11 +75,21 @@ _MEMORY_SCRIPT = textwrap.dedent("""
 """ % NOISE_STD)
 
 
-def run_jax(R, T, devices, repeats=3):
-    env = dict(os.environ, JAX_PLATFORMS="cpu",
-               XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
-    out = subprocess.run([sys.executable, "-c", _JAX_SCRIPT, str(R), str(T), str(repeats)],
-                         env=env, check=True, capture_output=True, text=True)
+def run_jax(R, T, devices, repeats=3, platform="cpu", chunk_size=None):
+    if platform == "cpu":
+        env = dict(os.environ, JAX_PLATFORMS="cpu",
+                   XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+    else:
+        # The accelerator's devices, with the host's CPU listed too: the closed form's band
+        # projection is a host callback, which needs a CPU device. The parent process holds
+        # the GPU too, so neither may preallocate most of its memory.
+        env = dict(os.environ, JAX_PLATFORMS=f"{platform},cpu",
+                   XLA_PYTHON_CLIENT_PREALLOCATE="false")
+    out = subprocess.run([sys.executable, "-c", _JAX_SCRIPT, str(R), str(T), str(repeats),
+                          str(chunk_size or 0)],
+                         env=env, capture_output=True, text=True)
+    if out.returncode:
+        raise RuntimeError(f"the hbjax study failed ({devices} device(s), {platform}):\n{out.stderr}")
     return json.loads(out.stdout)
 
 
@@ -121,7 +135,14 @@ def main():
     parser.add_argument("--memory-length", type=int, default=100_000)
     parser.add_argument("--skip-memory", action="store_true")
     parser.add_argument("--no-write", action="store_true")
+    parser.add_argument("--platform", default="cpu",
+                        help="JAX platform of the hbjax side: cpu (1 and one host device per "
+                        "core) or an accelerator (cuda: its devices); a non-cpu run prints only")
+    parser.add_argument("--chunk-size", type=int, default=None,
+                        help="realisations per device per chunk (default: hbjax's, by length)")
     args = parser.parse_args()
+    if args.platform != "cpu":
+        args.no_write = True  # the RESULTS.md section describes the CPU run
     R, T = args.realisations, args.length
     load_before = os.getloadavg()[0]
     model, design = hbjax.default_system(), hbjax.default_design()
@@ -131,8 +152,9 @@ def main():
 
     # --- hbjax: default (1 CPU device) and one host device per core (sharded chunks).
     jax_runs = {}
-    for dev in sorted({1, cores}):
-        res = run_jax(R, T, dev)
+    for dev in sorted({1, cores}) if args.platform == "cpu" else [0]:
+        res = run_jax(R, T, dev, platform=args.platform, chunk_size=args.chunk_size)
+        dev = res["devices"]
         jax_runs[dev] = res
         print(f"hbjax, {dev} device(s): compile {res['compile']:.2f} s, runs "
               f"{', '.join(f'{x:.3f}' for x in res['runs'])} s (chunk {res['chunk']}/device)")

@@ -1,4 +1,3 @@
-import pytest
 """The closed form as a start on random paper-class systems with high-degree branches.
 
 Systems from the independent generator ``tests/generators/paper_class.py``. For ``m >= 4``
@@ -10,7 +9,9 @@ reported as success counts as a failure). The full study is
 ``benchmarks/identify_random.py`` (figures in ``benchmarks/RESULTS.md``).
 """
 
+import jax
 import numpy as np
+import pytest
 from scipy.stats import chi2
 
 import hbjax
@@ -164,3 +165,21 @@ def test_crlb_of_a_wide_design_with_high_degree_branches_is_finite():
     u = np.linalg.svd(g[None, :])[2][1:].T
     np.testing.assert_allclose(u.T @ f @ cov @ f @ u, u.T @ f @ u, rtol=1e-6,
                                atol=1e-9 * np.abs(u.T @ f @ u).max())
+
+
+def test_closed_form_without_a_host_backend_says_how_to_enable_it(monkeypatch):
+    # On an accelerator with JAX_PLATFORMS naming only it, JAX would fail inside the band
+    # projection's host callback with an internal error, at run time.
+    real_devices = jax.devices
+
+    def no_cpu(backend=None):
+        if backend == "cpu":
+            raise RuntimeError("Unknown backend cpu")
+        return real_devices(backend)
+
+    monkeypatch.setattr(jax, "devices", no_cpu)
+    model, design = hbjax.default_system(), hbjax.default_design()
+    v = design.constant_input(2000), design.binary_input(2000), design.staircase_input(2000)
+    ys = [hbjax.simulate(model, x) for x in v]
+    with pytest.raises(RuntimeError, match="JAX_PLATFORMS=cuda,cpu"):
+        hbjax.identify_giri(design, *ys)

@@ -77,10 +77,24 @@ def _project_rows(g, z):
     return out.reshape(z.shape).astype(z.dtype)
 
 
+def _require_host_backend():
+    """The projection is a host callback: JAX needs its CPU backend for it, also when the
+    computation runs on an accelerator. Without one, JAX fails only when the call runs,
+    with an internal error; this says so at trace time, with the fix."""
+    try:
+        jax.devices("cpu")
+    except RuntimeError:
+        raise RuntimeError(
+            "the closed form's band projection runs on the host and needs JAX's CPU backend: "
+            "list cpu beside the accelerator (JAX_PLATFORMS=cuda,cpu) or leave JAX_PLATFORMS "
+            "unset.") from None
+
+
 def project_onto_band(z, levels_scaled, m: int, orientation_ok):
     """``z`` (2m plateau values) projected onto the design's band cone
     (:func:`band_constraints`); unchanged where ``orientation_ok`` is False (a gap of the
     wrong sign: the closed form fails with ``gap_not_crossed`` anyway)."""
+    _require_host_backend()
     g = band_constraints(levels_scaled, m)
     shape = jax.ShapeDtypeStruct(z.shape, z.dtype)
     projected = jax.pure_callback(lambda zz: _project_rows(g, zz), shape, z,

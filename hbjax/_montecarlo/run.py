@@ -81,12 +81,13 @@ def monte_carlo(
     - `noise`: ``"equation"`` (white ``xi`` of eq. (10)), ``"output"`` (white noise added to
       ``y``) or a callable ``(key, length) -> record (length,)`` used as the equation error
       ``xi`` (times `noise_std`), e.g. AR(1) coloured noise.
-    - `chunk_size`: realisations per device per chunk (default
-      ``min(64, max(16, 2**18 // N))``), the memory bound; a chunk runs
+    - `chunk_size`: realisations per device per chunk, the memory bound (default on CPU
+      ``min(64, max(16, 2**18 // N))``, records that stay in cache; on an accelerator
+      ``min(1024, max(16, 2**23 // N))``, enough to fill it); a chunk runs
       ``chunk_size * n_devices`` realisations at once (at least 2 per device; the last
-      chunk is padded). The chunk does not depend on `realisations` or on the devices, so
-      neither changes any realisation's estimate; a different `chunk_size` may change the
-      last bits (XLA's reduction order depends on the batch).
+      chunk is padded). The chunk does not depend on `realisations` or on the number of
+      devices, so neither changes any realisation's estimate; a different `chunk_size` may
+      change the last bits (XLA's reduction order depends on the batch).
     - `progress`: tqdm bar over chunks once the study has run for more than 2 s, on a
       terminal or in a notebook; ``False`` silences it, a dict passes options to tqdm.
     - `devices`: devices to shard realisations over (default: all, ``jax.devices()``).
@@ -121,7 +122,7 @@ def monte_carlo(
 
     n_dev = len(devices)
     sharding = NamedSharding(Mesh(np.array(devices), (AXIS,)), PartitionSpec(AXIS))
-    per_device = {n: batch_per_device(n, chunk_size) for n in lengths}
+    per_device = {n: batch_per_device(n, chunk_size, devices[0].platform) for n in lengths}
     n_chunks = {n: -(-realisations // (per_device[n] * n_dev)) for n in lengths}
     replicated = NamedSharding(sharding.mesh, PartitionSpec())
     model_r = jax.tree_util.tree_map(lambda x: global_array(np.asarray(x), replicated), model)
