@@ -147,9 +147,9 @@ def independent_sample():
 
 @pytest.mark.slow
 def test_diagnosis_on_independent_cases_holds_its_measured_level(independent_sample):
-    # Measured on this sample: 11 of 15 effects named (the misses, ambiguous at this
-    # length and noise, are listed in benchmarks/RESULTS.md) and no finding on the clean
-    # records. The floor sits two cases below, so the test fails on a regression, not
+    # Measured on this sample: 11 of 15 effects named and no finding on the clean
+    # records (benchmarks/RESULTS.md lists the misses of the large study, not this
+    # sample's). The floor sits two cases below, so the test fails on a regression, not
     # on one borderline decision moving.
     tops, clean_findings = independent_sample
     overall = np.mean([t == e for e, ts in tops.items() for t in ts])

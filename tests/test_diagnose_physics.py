@@ -89,12 +89,18 @@ def _open(effect):
 @pytest.mark.parametrize("effect", [_open("coulomb_friction"),
                                     _open("level_dependent_dynamics"), "harmonic_distortion"])
 def test_new_effect_named_over_seeds(effect):
-    """A statistic over seeds: the right effect is the best finding on most recordings."""
-    hits = []
+    """A statistic over seeds: the right effect is the best finding on at least 2 of 3
+    recordings. The seeds run in order until that is decided either way (two hits, or two
+    misses): the verdict is the one all three would give."""
+    hits, misses = [], []
     for seed in range(3):
         c = concealed_case(np.random.default_rng(500 + seed), effect, n=1500)
         d = hbjax.diagnose(c["nominal_model"], c["v"], c["y"], progress=False)
-        hits.append(d.best is not None and d.best.effect == effect)
-        if hits[-1]:
+        if d.best is not None and d.best.effect == effect:
             assert d.best.fit_after > d.best.fit_before
-    assert np.mean(hits) >= 2 / 3, hits
+            hits.append(seed)
+        else:
+            misses.append((seed, d.best and d.best.effect))
+        if len(hits) == 2 or len(misses) == 2:
+            break
+    assert len(hits) >= 2, misses

@@ -46,12 +46,15 @@ def pad(x, length: int) -> jax.Array:
     """Concrete ``x`` with zeros appended up to ``length`` samples, padded on the host and
     placed with ``device_put`` (an eager ``jnp`` op would compile once per length) on the
     device ``x`` was committed to, if any."""
-    return jax.device_put(_padded(x, length), _committed_device(x))
+    return jax.device_put(padded(x, length), _committed_device(x))
 
 
-def _padded(x, length: int) -> np.ndarray:
+def padded(x, length: int, *, hold: bool = False) -> np.ndarray:
+    """``x`` on the host, extended to ``length`` samples with zeros, or with its last value
+    repeated (``hold=True``: a held input and output keep the padded part of every
+    recursion finite, where the padding is masked out or cut off rather than zero)."""
     x = np.asarray(x)
-    return np.pad(x, (0, length - x.shape[0]))
+    return np.pad(x, (0, length - x.shape[0]), mode="edge" if hold else "constant")
 
 
 def _committed_device(x):
@@ -73,7 +76,7 @@ def padded_records(recordings) -> tuple:
     for v, y in recordings:
         n = int(v.shape[0])
         size = bucket_length(n)
-        host.append((_padded(v, size), _padded(y, size), np.asarray(n)))
+        host.append((padded(v, size), padded(y, size), np.asarray(n)))
         devices.append(_committed_device(v))
     # One transfer for all records where they share a device (0.05 ms per transfer).
     if len(set(devices)) == 1:

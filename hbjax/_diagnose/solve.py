@@ -25,18 +25,10 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from .._core.buckets import bucket_length
-
+from .._core.buckets import bucket_length, padded
 from .._identify.lm import levenberg_marquardt
 from .effect_base import base_model, term_error
 from .kernel import Layout, fast_jacobian, fast_prediction_error, play_gather, prediction_error
-
-
-def _padded(x, size: int) -> np.ndarray:
-    """``x`` with its last value repeated up to ``size`` samples (a held input and output
-    keep the padded part of every recursion finite; it is masked out or cut off)."""
-    x = np.asarray(x)
-    return np.pad(x, (0, size - x.shape[0]), mode="edge")
 
 
 def _bucketed(v, y, burn: int = 0):
@@ -44,7 +36,7 @@ def _bucketed(v, y, burn: int = 0):
     window ``[burn, n)`` as an integer array (a runtime value of the compiled solvers)."""
     n = int(np.shape(v)[0])
     size = bucket_length(n)
-    return (jnp.asarray(_padded(v, size)), jnp.asarray(_padded(y, size)),
+    return (jnp.asarray(padded(v, size, hold=True)), jnp.asarray(padded(y, size, hold=True)),
             jnp.asarray([int(burn), n]))
 
 
