@@ -106,11 +106,13 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
                                       and st[key] > nom[key]):
             why = ("prediction-only gain: at most a noise-model finding"
                    if dm_pred > DM_Z else "no significant held-out free-run gain")
-        elif (c.effect == "unmodeled_dynamics" and "colored_noise" in names
-              and stats[names.index("colored_noise") + 1]["bic"] - st["bic"] <= BIC_MARGIN):
-            # an ARX block one order up can absorb AR-coloured equation error
-            why = "does not beat the noise-model explanation (colored_noise) in BIC"
         else:
+            # No separate rule pits unmodeled_dynamics against colored_noise: an ARX block
+            # one order up can absorb AR-coloured equation error in BIC, but a noise model
+            # cannot give the held-out free-run gain the mechanism has just shown. A rule
+            # that also demanded a BIC margin over colored_noise fired on 34 of 464
+            # independent cases: it refused 3 true unmodeled_dynamics and changed no
+            # colored_noise case and no clean record (benchmarks/RESULTS.md).
             why = None
         st["decision"] = why or "reported"
         if why is not None:
