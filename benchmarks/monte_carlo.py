@@ -89,7 +89,8 @@ def run_jax(R, T, devices, repeats=3, platform="cpu", chunk_size=None):
                           str(chunk_size or 0)],
                          env=env, capture_output=True, text=True)
     if out.returncode:
-        raise RuntimeError(f"the hbjax study failed ({devices} device(s), {platform}):\n{out.stderr}")
+        raise RuntimeError(f"the hbjax study failed ({platform}, devices {devices or 'all'}):\n"
+                           f"{out.stderr}")
     return json.loads(out.stdout)
 
 
@@ -152,8 +153,9 @@ def main():
 
     # --- hbjax: default (1 CPU device) and one host device per core (sharded chunks).
     jax_runs = {}
-    for dev in sorted({1, cores}) if args.platform == "cpu" else [0]:
-        res = run_jax(R, T, dev, platform=args.platform, chunk_size=args.chunk_size)
+    # On an accelerator: its own devices, however many (the count comes back with the run).
+    for count in sorted({1, cores}) if args.platform == "cpu" else [None]:
+        res = run_jax(R, T, count, platform=args.platform, chunk_size=args.chunk_size)
         dev = res["devices"]
         jax_runs[dev] = res
         print(f"hbjax, {dev} device(s): compile {res['compile']:.2f} s, runs "

@@ -32,8 +32,8 @@ from .checks import giri, refined, result_code
 # An accelerator is the opposite case: each step of the time loop is a kernel launch whatever
 # the batch, so a chunk must hold many realisations to fill the device (measured on an H200
 # at N = 10 000: 708 realisations/s with the CPU's 26 per chunk, 18 189 with 1000). Its
-# default is 2**23 realisation-samples (64 MiB per float64 record set, a few hundred MiB with
-# the estimator's intermediates), at most 1024 realisations.
+# default is 2**23 realisation-samples (192 MiB of float64 records for the three
+# experiments), at most 1024 realisations.
 _CHUNK_SAMPLES = {"cpu": 2**18, "accelerator": 2**23}
 _MIN_CHUNK = 16
 _MAX_CHUNK = {"cpu": 64, "accelerator": 1024}
