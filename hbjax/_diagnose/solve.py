@@ -1,6 +1,7 @@
 """Compiled fitting engine of the diagnosis: every candidate extension is fitted jointly
 with the base parameters by Levenberg-Marquardt (``optimistix.least_squares``) on the
-prediction error of the extended simulator, all candidates at once under ``jax.vmap``.
+prediction error of the extended simulator, all candidates of a batch in one compiled
+``jax.lax.map``.
 
 A candidate is data: a start ``theta0`` (full extended vector), the discrete values
 ``ints = [delay, change time]`` and a selection matrix ``S`` (columns = the free
@@ -97,7 +98,10 @@ def _fit_batch(lay, theta0, S, ints, consts, v, y, window, max_steps, output_sta
         value, steps, ok = _least_squares(eps, jac, s.shape[1], max_steps)
         return th0 + s @ value, steps, ok
 
-    return jax.vmap(one)(theta0, S, ints)
+    # One candidate after the other: under ``vmap`` every candidate would take as many
+    # Levenberg-Marquardt steps as the slowest one and the batch's Jacobians would not stay
+    # in cache (benchmarks/against_earlier.py's diagnose: 942 -> 736 ms on the 2-core CPU).
+    return jax.lax.map(lambda args: one(*args), (theta0, S, ints))
 
 
 def _least_squares(eps, jac, n: int, max_steps: int):
