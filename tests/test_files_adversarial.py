@@ -290,6 +290,35 @@ def test_ctrl_c_during_a_study_exits_130_cleanly(tmp_path):
     assert not (tmp_path / "s.json").exists()
 
 
+_SWALLOWED_CTRL_C = """
+import gc, os, signal, sys, time
+from hbjax._cli import parser
+
+parser._watch_interrupts("hbjax demo")
+
+def collect(phase, info):  # the Ctrl-C arrives inside a garbage-collection callback
+    if phase == "start" and not getattr(collect, "done", False):
+        collect.done = True
+        os.kill(os.getpid(), signal.SIGINT)
+
+gc.callbacks.append(collect)
+gc.collect()
+t0 = time.monotonic()
+while time.monotonic() - t0 < 60:  # the command runs on: only the watchdog can end it
+    time.sleep(0.05)
+sys.exit(0)
+"""
+
+
+def test_ctrl_c_swallowed_by_a_callback_still_ends_the_command_with_130():
+    proc = subprocess.run([sys.executable, "-c", _SWALLOWED_CTRL_C], capture_output=True,
+                          timeout=120)
+    err = proc.stderr.decode(errors="replace")
+    assert "Exception ignored" in err  # Python did swallow the KeyboardInterrupt
+    # (the script itself would exit 0 after its minute)
+    assert proc.returncode == 130 and "hbjax demo: interrupted" in err, err
+
+
 # ----------------------------------------------------------------------------- properties
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)

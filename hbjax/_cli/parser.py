@@ -10,6 +10,7 @@ together (all or nothing).
 
 import argparse
 import sys
+import time
 
 from . import commands as commands
 from . import montecarlo as montecarlo
@@ -295,8 +296,19 @@ def _exit_interrupted(prog: str) -> None:
     os._exit(130)
 
 
-def _watch_interrupts():
+# Seconds a Ctrl-C may take to reach the command as ``KeyboardInterrupt`` before the
+# watchdog ends the program itself.
+_INTERRUPT_GRACE = 1.0
+
+
+def _watch_interrupts(prog: str):
     """Record every Ctrl-C, then raise ``KeyboardInterrupt`` as Python's own handler does.
+
+    Python runs the handler between two bytecodes of the main thread, wherever that is; in
+    a garbage-collection callback (JAX registers one) the raised ``KeyboardInterrupt`` is
+    "ignored" and the command would run on to the end (seen: a Monte Carlo study finished
+    and exited 0 after its Ctrl-C). A watchdog thread therefore ends the program with
+    status 130 if the main thread has not done so within ``_INTERRUPT_GRACE`` seconds.
 
     Returns the flag, or ``None`` where handlers cannot be installed (not the main thread)."""
     import signal
@@ -308,10 +320,16 @@ def _watch_interrupts():
         flag.set()
         raise KeyboardInterrupt
 
+    def watchdog():
+        flag.wait()
+        time.sleep(_INTERRUPT_GRACE)
+        _exit_interrupted(prog)
+
     try:
         signal.signal(signal.SIGINT, on_interrupt)
     except ValueError:
         return None
+    threading.Thread(target=watchdog, name="hbjax-interrupt", daemon=True).start()
     return flag
 
 
@@ -323,7 +341,7 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = getattr(args, "_prog", f"hbjax {args.command}")
-    interrupted = _watch_interrupts() if argv is None else None
+    interrupted = _watch_interrupts(prog) if argv is None else None
     try:
         return args.func(args)
     except KeyboardInterrupt:
