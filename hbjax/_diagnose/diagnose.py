@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core.cache import ensure_compilation_cache
+from .._core.mappings import release_compiled_programs
 from .._core.model import Hammerstein
 from .._core.precision import require_x64
 from .._core.progress import check_progress, progress_bar
@@ -130,6 +131,7 @@ def diagnose(model: Hammerstein, v, y=None, *, holdout: float = 0.3, effects=Non
     """
     require_x64("diagnose")
     ensure_compilation_cache()
+    release_compiled_programs()
     check_progress(progress)
     if channels is None:
         channels = getattr(v, "channels", None) or None

@@ -19,6 +19,7 @@ from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash, play_sources, polyval_ascending
 from .._core.cache import ensure_compilation_cache
+from .._core.mappings import release_compiled_programs
 from .._core.progress import check_progress, progress_bar
 from .._misc import check_key, is_traced, positive_int
 from .._core.precision import require_x64
@@ -386,6 +387,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     """
     require_x64("fit")
     ensure_compilation_cache()
+    release_compiled_programs()
     check_progress(progress)
     na = positive_int(na, "na", minimum=0)
     nb = positive_int(nb, "nb")

@@ -16,6 +16,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._core.cache import ensure_compilation_cache
+from .._core.mappings import release_compiled_programs
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, param_names
 from .._core.precision import require_x64
@@ -100,6 +101,7 @@ def monte_carlo(
     """
     require_x64("monte_carlo")
     ensure_compilation_cache()
+    release_compiled_programs()
     check_progress(progress)
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
