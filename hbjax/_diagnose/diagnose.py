@@ -222,9 +222,8 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                                  channels, n_fit, burn, criterion, table)
         if finding is not None:
             findings = sorted(findings + [finding], key=lambda f: f.evidence["bic"])
-    # mechanisms (a held-out free-run gain) rank before noise-model findings (a one-step
-    # prediction gain only), each group by BIC
-    findings = sorted(findings, key=lambda f: (f.metric != "simulation", f.evidence["bic"]))
+    # mechanisms rank before noise-model findings, each group by BIC
+    findings = sorted(findings, key=lambda f: (not f.mechanism, f.evidence["bic"]))
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
     bar.update(1)

@@ -117,7 +117,15 @@ class AbstractEffect(AbstractModel):
       diagnosis context: signatures in the nominal residual);
     - :meth:`output_term` (added to the linear block's output) and/or :meth:`input_term`
       (added to the backlash output before the linear block);
-    - :meth:`describe`: the physics sentence built from the fitted values.
+    - :meth:`describe`: the physics sentence built from the fitted values;
+    - optionally `noise_rival` (``ClassVar[str]``, see below).
+
+    A mechanism is reported where it improves the held-out free run
+    (:func:`hbjax._diagnose.decide.decide`). `noise_rival` names a noise model that gains
+    in one-step prediction exactly as the mechanism can; where the free-run gain is not
+    significant, the mechanism is still reported, on its held-out prediction gain, if it
+    beats that noise model by the BIC margin (so the gain is in the input-to-output
+    dynamics, which the noise model cannot change).
 
     The context ``ctx`` the class methods receive describes the fitting segment:
     ``ctx.v_fit``, ``ctx.y_fit`` (the recording), ``ctx.y_sim_nom`` (the nominal free run),
@@ -137,6 +145,7 @@ class AbstractEffect(AbstractModel):
     base: eqx.AbstractVar[Hammerstein]
     name: ClassVar[str]
     n_params: ClassVar[int] = 0
+    noise_rival: ClassVar[str | None] = None
 
     def __check_init__(self):
         if not isinstance(self.base, Hammerstein):

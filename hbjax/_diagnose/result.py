@@ -32,6 +32,11 @@ class Finding:
     fit_after: float
     evidence: dict
 
+    @property
+    def mechanism(self) -> bool:
+        """A physical mechanism (``evidence["kind"]``), not a noise model."""
+        return self.evidence.get("kind", "mechanism") == "mechanism"
+
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "model"}
         d["model_class"] = type(self.model).__name__

@@ -67,8 +67,12 @@ def sentence(verdict_: str, detail: dict, findings: list) -> str:
     """The verdict as one plain sentence for :meth:`hbjax.Diagnosis.summary`."""
     if verdict_ == "explained":
         f = findings[0]
-        kind = ("a noise-model finding (held-out one-step prediction)"
-                if f.metric == "prediction" else "held-out free-run simulation")
+        if not f.mechanism:
+            kind = "a noise-model finding (held-out one-step prediction)"
+        elif f.metric == "prediction":
+            kind = "a mechanism the free run cannot show: held-out one-step prediction"
+        else:
+            kind = "held-out free-run simulation"
         return (f"Verdict: explained. {f.effect} accounts for the mismatch ({kind} fit "
                 f"{f.fit_before:.1f}% -> {f.fit_after:.1f}%).")
     if verdict_ == "consistent":
