@@ -4,8 +4,9 @@
   prediction error is white and independent of past inputs at the :data:`REJECT_P` level):
   the recording is the nominal model up to white equation error.
 - ``"explained"``: at least one finding: a mechanism that improves the **held-out free-run
-  simulation** significantly, or (at most) a noise-model finding (``colored_noise``) that
-  improves the held-out one-step prediction.
+  simulation** significantly (or, for a mechanism a noise model can mimic, its held-out
+  one-step prediction while beating that noise model in BIC: ``noise_rival``), or (at most) a
+  noise-model finding (``colored_noise``) that improves the held-out one-step prediction.
 - ``"unexplained"``: no finding, but a residual test rejects. The structure is real, the
   library has no mechanism for it; the report names the rejecting tests and the regime
   variable (output level, input level, input rate, motion direction, time) whose bins
