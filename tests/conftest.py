@@ -38,6 +38,7 @@ def pytest_unconfigure(config):
 jax.config.update("jax_enable_x64", True)
 
 import hbjax  # noqa: E402
+from hbjax._core.mappings import mapping_count  # noqa: E402
 
 # The longest test modules first (seconds of test time each in a full run on the 2-core
 # machine, largest first): `make test` hands whole files to its two workers in collection
@@ -58,14 +59,6 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: rank.get(os.path.basename(str(item.fspath)), len(rank)))
 
 
-def _mapping_count() -> int:
-    try:
-        with open("/proc/self/maps", "rb") as maps:
-            return sum(1 for _ in maps)
-    except OSError:  # not Linux: no per-process mapping limit to watch
-        return 0
-
-
 @pytest.fixture(autouse=True)
 def _free_compiled_programs():
     """Drop JAX's compiled programs when the process holds many memory mappings.
@@ -77,7 +70,7 @@ def _free_compiled_programs():
     and the next compilation dies inside LLVM with a segmentation fault. Clearing only past
     a high-water mark keeps the programs that later tests share."""
     yield
-    if _mapping_count() > 30000:
+    if (mapping_count() or 0) > 30000:  # (None: not Linux, no mapping limit to watch)
         jax.clear_caches()
 
 

@@ -343,7 +343,12 @@ def main(argv=None) -> int:
     prog = getattr(args, "_prog", f"hbjax {args.command}")
     interrupted = _watch_interrupts(prog) if argv is None else None
     try:
-        return args.func(args)
+        status = args.func(args)
+        if interrupted is not None and interrupted.is_set():
+            # A swallowed Ctrl-C (see _watch_interrupts) and a command that ended before
+            # the watchdog: still an interruption, not a success.
+            _exit_interrupted(prog)
+        return status
     except KeyboardInterrupt:
         if argv is None:  # the program itself (not a call from Python): exit now
             _exit_interrupted(prog)

@@ -12,6 +12,7 @@ are compiled again, or read from the persistent compilation cache, when next nee
 the process holds more than half of its allowance.
 """
 
+import functools
 import warnings
 
 import jax
@@ -19,8 +20,6 @@ import jax
 # Of the kernel's cap: room left for the programs of the call about to run (a diagnosis
 # compiles a few thousand mappings' worth).
 _FRACTION = 0.5
-_limit_read = False
-_limit: int | None = None
 
 
 def mapping_count() -> int | None:
@@ -32,17 +31,14 @@ def mapping_count() -> int | None:
         return None
 
 
+@functools.cache
 def mapping_limit() -> int | None:
     """``vm.max_map_count``, or ``None`` where ``/proc`` does not tell (read once)."""
-    global _limit_read, _limit
-    if not _limit_read:
-        try:
-            with open("/proc/sys/vm/max_map_count") as f:
-                _limit = int(f.read().split()[0])
-        except (OSError, ValueError, IndexError):
-            _limit = None
-        _limit_read = True
-    return _limit
+    try:
+        with open("/proc/sys/vm/max_map_count") as f:
+            return int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def release_compiled_programs(count: int | None = None, limit: int | None = None) -> bool:

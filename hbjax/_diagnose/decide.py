@@ -45,18 +45,20 @@ def statistics(y, fast_all, eps_all, ysim_all, n_fit, burn, lay, candidates, the
     return out
 
 
-def _beats_its_noise_rival(c, st, stats, names, dm, dm_pred, against, nom) -> bool:
-    """A mechanism whose held-out free-run gain is not significant (nor its free run
+def _margin_over_noise_rival(c, st, stats, names, dm, dm_pred, against, nom):
+    """For a mechanism whose held-out free-run gain is not significant (nor its free run
     significantly worse than its reference's, ``dm``) but whose one-step prediction gain
-    is, and which beats the noise model that could mimic that gain (``noise_rival`` of its
-    class) by the BIC margin on the fitting segment."""
-    rival = getattr(c.cls, "noise_rival", None)
+    is: its BIC margin over the noise model that could mimic that gain (``noise_rival`` of
+    its class) if that margin exceeds BIC_MARGIN, else ``None``."""
+    rival = c.cls.noise_rival
     if rival is None or rival not in names:
-        return False
-    rival_bic = stats[names.index(rival) + 1]["bic"]
-    return (dm_pred > DM_Z and dm > -DM_Z and st["fit_pred"] > against["fit_pred"]
-            and st["fit_pred"] > nom["fit_pred"] and math.isfinite(rival_bic)
-            and rival_bic - st["bic"] > BIC_MARGIN)
+        return None
+    margin = stats[names.index(rival) + 1]["bic"] - st["bic"]
+    if (dm_pred > DM_Z and dm > -DM_Z and st["fit_pred"] > against["fit_pred"]
+            and st["fit_pred"] > nom["fit_pred"] and math.isfinite(margin)
+            and margin > BIC_MARGIN):
+        return margin
+    return None
 
 
 def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y, v, n_fit, tests):
@@ -75,7 +77,7 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
     refit): a noise model changes no mechanism, so it must not cost free-run accuracy, but
     the base estimation it shares with the refit may (on a record of the nominal model
     itself, every refit simulates slightly worse than the nominal model). One exception
-    (:func:`_beats_its_noise_rival`): a mechanism whose class names a ``noise_rival`` is
+    (:func:`_margin_over_noise_rival`): a mechanism whose class names a ``noise_rival`` is
     reported on a significant held-out prediction gain alone where it beats that noise
     model by BIC_MARGIN, and its finding's metric is then ``"prediction"``."""
     names = [c.effect for c in candidates]
@@ -112,6 +114,7 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
         dm_sim_ref = (rt.diebold_mariano(held(j, "simulation"), held(i, "simulation"))
                       if noise_model else dm)
         dbic = against["bic"] - st["bic"]
+        rival_margin = None
         st.update(dbic=dbic, dm_z=dm, dm_z_simulation=dm_sim_nom)
         if dbic <= BIC_MARGIN:
             why = f"BIC gain over its reference {dbic:.1f} <= {BIC_MARGIN:g}"
@@ -121,7 +124,9 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
             why = "free run significantly worse than that of the model it extends"
         elif not noise_model and not (dm > DM_Z and dm_sim_nom > DM_Z and st[key] > against[key]
                                       and st[key] > nom[key]):
-            if _beats_its_noise_rival(c, st, stats, names, dm, dm_pred, against, nom):
+            rival_margin = _margin_over_noise_rival(c, st, stats, names, dm, dm_pred, against,
+                                                    nom)
+            if rival_margin is not None:
                 metric, key = "prediction", "fit_pred"
                 why = None
             else:
@@ -147,12 +152,10 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
             "reference_fit": against[key], "parameters_fitted": st["k"], "bic": st["bic"],
             "kind": "noise model" if noise_model else "mechanism",
         }
-        if metric == "prediction" and not noise_model:
-            rival = c.cls.noise_rival
+        if rival_margin is not None:
             evidence["judged_on"] = (
                 f"held-out one-step prediction (free-run gain not significant) and a BIC "
-                f"margin of {stats[names.index(rival) + 1]['bic'] - st['bic']:.1f} over the "
-                f"noise model {rival}")
+                f"margin of {rival_margin:.1f} over the noise model {c.cls.noise_rival}")
         model = cands.to_model(ctx, c, np.asarray(theta_fit[i - 1]), ints[i])
         text = model.describe(ctx, dict(
             y=y, v=v, n_fit=n_fit, ysim=ysim_all[i], ysim_ref=ysim_all[ref_i], u=u_all[i],

@@ -102,7 +102,7 @@ class UnmodeledDynamics(AbstractKernelEffect):
     # by the new zero: both gain in one-step prediction. Beating colored_noise by the BIC
     # margin means the zero does not cancel the pole, i.e. the input-to-output dynamics
     # changed; the held-out free run, dominated by the AR-filtered noise, often cannot show
-    # it significantly (464 independent cases: 11 of 29 true unmodeled_dynamics refused so).
+    # it significantly (464 independent cases: 12 of 29 true unmodeled_dynamics refused so).
     noise_rival: ClassVar[str | None] = "colored_noise"
 
     @classmethod
