@@ -165,8 +165,9 @@ def main():
          "estimates the initial state (its default, `initial_state=\"estimate\"`), refines "
          "its best start on the core operator where its branches meet inside the data, "
          "solves a quarter of its starts (loops closed inside the data) on the core "
-         "operator, and runs the same checks; `monte_carlo` runs a per-device batch fixed by the record "
-         "length (at most 64 realisations), so that every realisation gets the same bits "
+         "operator, and runs the same checks; `monte_carlo` computes every realisation in a "
+         "group (one vmap) whose width is fixed by the record length (at most 32 realisations "
+         "on CPU), so that every realisation gets the same bits "
          "whatever the number of realisations or devices; `diagnose` fits more candidate "
          "effects (physics inside the dynamics, harmonic distortion, level dependence), "
          "chooses an excited held-out part and validates findings by free-run simulation."),

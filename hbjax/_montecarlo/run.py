@@ -31,7 +31,7 @@ from .checks import (
     resolve_devices,
     resolve_estimator,
 )
-from .chunks import AXIS, batch_per_device, chunk_executable, global_array, to_host
+from .chunks import AXIS, active_groups, chunk_executable, chunk_layout, global_array, to_host
 from .study import Study
 
 
@@ -82,13 +82,14 @@ def monte_carlo(
     - `noise`: ``"equation"`` (white ``xi`` of eq. (10)), ``"output"`` (white noise added to
       ``y``) or a callable ``(key, length) -> record (length,)`` used as the equation error
       ``xi`` (times `noise_std`), e.g. AR(1) coloured noise.
-    - `chunk_size`: realisations per device per chunk, the memory bound (default on CPU
-      ``min(64, max(16, 2**18 // N))``, records that stay in cache; on an accelerator
-      ``min(1024, max(16, 2**23 // N))``, enough to fill it); a chunk runs
-      ``chunk_size * n_devices`` realisations at once (at least 2 per device; the last
-      chunk is padded). The chunk does not depend on `realisations` or on the number of
-      devices, so neither changes any realisation's estimate; a different `chunk_size` may
-      change the last bits (XLA's reduction order depends on the batch).
+    - `chunk_size`: realisations per device per chunk, the memory bound, computed as one
+      ``vmap`` (at least 2; the last chunk is padded). Default: on CPU two groups of
+      ``min(32, max(16, 2**18 // N))`` realisations, records that stay in cache, and only
+      the groups that hold requested realisations run; on an accelerator one group of
+      ``min(1024, max(16, 2**23 // N))``, enough to fill it. Neither `realisations` nor the
+      number of devices changes the groups, so neither changes any realisation's
+      estimate; a different `chunk_size` may change the last bits (XLA's reduction order
+      depends on the batch).
     - `progress`: tqdm bar over chunks once the study has run for more than 2 s, on a
       terminal or in a notebook; ``False`` silences it, a dict passes options to tqdm.
     - `devices`: devices to shard realisations over (default: all, ``jax.devices()``).
@@ -124,8 +125,8 @@ def monte_carlo(
 
     n_dev = len(devices)
     sharding = NamedSharding(Mesh(np.array(devices), (AXIS,)), PartitionSpec(AXIS))
-    per_device = {n: batch_per_device(n, chunk_size, devices[0].platform) for n in lengths}
-    n_chunks = {n: -(-realisations // (per_device[n] * n_dev)) for n in lengths}
+    layout = {n: chunk_layout(n, chunk_size, devices[0].platform) for n in lengths}
+    n_chunks = {n: -(-realisations // (layout[n][1] * n_dev)) for n in lengths}
     replicated = NamedSharding(sharding.mesh, PartitionSpec())
     model_r = jax.tree_util.tree_map(lambda x: global_array(np.asarray(x), replicated), model)
     std_r = global_array(np.asarray(noise_std, np.float64), replicated)
@@ -135,9 +136,11 @@ def monte_carlo(
     compile_s, run_s = np.zeros(len(lengths)), np.zeros(len(lengths))
     try:
         for i, n in enumerate(lengths):
-            step = per_device[n] * n_dev
+            group, per_device = layout[n]
+            step = per_device * n_dev
             compiled, compile_s[i] = chunk_executable(
-                model, design, n, noise, draws[n], estimator_fn, step, sharding, key)
+                model, design, n, noise, draws[n], estimator_fn, group, per_device, sharding,
+                key)
             t0 = time.perf_counter()
             # Keys depend on (N, r) only: adding realisations or devices keeps old draws.
             # All of a length's keys in one call (an eager vmap per chunk cost milliseconds).
@@ -146,8 +149,10 @@ def monte_carlo(
             for c in range(n_chunks[n]):
                 idx = np.arange(c * step, (c + 1) * step)
                 keys = global_array(all_keys[c * step:(c + 1) * step], sharding)
+                groups = global_array(
+                    active_groups(realisations, c, per_device, group, n_dev), replicated)
                 # Dispatch is asynchronous: the next chunk is queued while this one runs.
-                pending.append((idx, compiled(model_r, std_r, keys)))
+                pending.append((idx, compiled(model_r, std_r, keys, groups)))
                 if len(pending) > 1:
                     _collect(pending.pop(0), estimates[i], codes[i], realisations, bar)
             while pending:
@@ -160,7 +165,7 @@ def monte_carlo(
         lengths, param_names(model), true, estimates, codes, keep_estimates=keep_estimates,
         compile_seconds=compile_s, run_seconds=run_s, realisations=realisations,
         noise_std=noise_std, estimator=estimator_name, noise=noise_name, n_devices=n_dev,
-        chunk_size=int(min(per_device.values())),
+        chunk_size=int(min(layout[n][1] for n in lengths)),
     )
 
 
