@@ -78,7 +78,11 @@ def padded_records(recordings) -> tuple:
         size = bucket_length(n)
         host.append((padded(v, size), padded(y, size), np.asarray(n)))
         devices.append(_committed_device(v))
-    # One transfer for all records where they share a device (0.05 ms per transfer).
+    # Records on no committed device stay NumPy arrays: the jitted estimator transfers its
+    # arguments in its C++ dispatch, faster than a `device_put` from Python (0.4 ms of a
+    # 7 ms refinement). Otherwise one transfer for all records where they share a device.
+    if devices == [None] * len(devices):
+        return tuple(host)
     if len(set(devices)) == 1:
         return tuple(jax.device_put(tuple(host), devices[0]))
     return tuple(jax.device_put(rec, device) for rec, device in zip(host, devices))
