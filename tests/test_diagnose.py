@@ -13,7 +13,8 @@ import hbjax
 from hbjax._diagnose import effects as fx
 from hbjax._diagnose.effects import layout_of
 from hbjax._diagnose.kernel import fast_jacobian, fast_prediction_error, prediction_error
-from hbjax._identify.criteria import CORE_BAND, record_residual
+from hbjax._identify.criteria import record_residual
+from hbjax._identify.parametrisation import CORE_BAND
 
 
 def _reference(c1, c2, a, b, v, xi, *, delay=0, u_clip=(-np.inf, np.inf), y_map=None):

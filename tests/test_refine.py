@@ -7,6 +7,7 @@ import pytest
 
 import hbjax
 from hbjax._identify import criteria as C
+from hbjax._identify import parametrisation as P
 from hbjax._core.model import play_trajectory
 from hbjax._identify.refine import RESULTS, refine_batch, refine_traceable
 
@@ -134,8 +135,8 @@ def test_closed_form_jacobian_matches_autodiff_of_core(system, criterion):
 
 @pytest.mark.parametrize("h_m", [4.0, None])
 def test_parametrisation_satisfies_constraint(h_m):
-    gauge = C.PAPER if h_m is not None else C.STATIC_GAIN
-    par = C.Parametrisation(2, 2, 3, gauge, jnp.asarray(8.0), jnp.asarray(h_m or 0.0),
+    gauge = P.PAPER if h_m is not None else P.STATIC_GAIN
+    par = P.Parametrisation(2, 2, 3, gauge, jnp.asarray(8.0), jnp.asarray(h_m or 0.0),
                             jnp.asarray(True))
     z = jnp.asarray(np.random.default_rng(3).normal(size=9))
     theta = par.theta(z)

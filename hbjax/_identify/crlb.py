@@ -11,7 +11,8 @@ from .._core import display
 from .._misc import is_traced, positive_float
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
-from .criteria import PAPER, STATIC_GAIN, Parametrisation, outputs
+from .criteria import outputs
+from .parametrisation import PAPER, STATIC_GAIN, Parametrisation
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, gauge_factor, model_from_theta
 from .recordings import as_recordings, check_criterion, check_h_m, check_model

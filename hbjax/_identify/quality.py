@@ -16,7 +16,8 @@ from .._core.initial import _estimate
 from .._core.model import Hammerstein
 from .._core.params import split_theta
 from .._misc import lag_sum
-from .criteria import CORE_BAND, SIMULATION, branch_sources, unpack, where_valid
+from .criteria import SIMULATION, branch_sources, unpack, where_valid
+from .parametrisation import CORE_BAND
 from .stable import remove_start
 
 # A result whose free-run fit on its own estimation data (all records pooled) is below this

@@ -14,7 +14,8 @@ from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._core.model import Hammerstein
 from .._core.params import gauge_factor
-from .criteria import PAPER, PREDICTION, STATIC_GAIN, Parametrisation, data_scale, residuals
+from .criteria import PREDICTION, data_scale, residuals
+from .parametrisation import PAPER, STATIC_GAIN, Parametrisation
 from .lm import levenberg_marquardt
 from .sufficient import gauss_newton_matrix, solve_by_statistics, worth_it
 

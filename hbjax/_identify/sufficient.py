@@ -22,7 +22,8 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._misc import lagged
-from .criteria import Parametrisation, _internal, unpack, where_valid
+from .criteria import _internal, unpack, where_valid
+from .parametrisation import Parametrisation
 from .lm import levenberg_marquardt
 
 # Rounds after which sources that still move hand over to the full solve. From a start far
