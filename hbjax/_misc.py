@@ -50,7 +50,8 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None, host: b
     xp = np if on_host else jnp
     out = arr if on_host else jnp.asarray(x)
     if dtype is not None:
-        out = out.astype(dtype)
+        # (a host array already of `dtype` is not copied: no caller edits it in place)
+        out = out.astype(dtype, copy=False) if on_host else out.astype(dtype)
     elif not xp.issubdtype(out.dtype, xp.inexact):
         out = out.astype(jnp.result_type(float))
     if ndim is not None and out.ndim != ndim:

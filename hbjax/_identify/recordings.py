@@ -119,7 +119,9 @@ def check_h_m(h_m):
     of ``filter_jit``, one compilation per value)."""
     if h_m is None or is_traced(h_m):
         return h_m
-    return jnp.asarray(positive_float(h_m, "h_m"), jnp.float64)
+    # A NumPy scalar array: the jitted estimator transfers it with its other arguments
+    # (an eager `jnp.asarray` is a device dispatch of its own).
+    return np.asarray(positive_float(h_m, "h_m"), np.float64)
 
 
 def check_model(model, name: str = "model") -> None:
