@@ -154,3 +154,23 @@ def test_diagnosis_summary_is_text_and_html(system):
     assert "<td style='text-align:right'>88.5</td>" in html and "-42" in html
     assert repr(d) == ("Diagnosis(verdict='explained', best='output_saturation', findings="
                        "['output_saturation'], n_fit=700, n_holdout=300)")
+    assert d.unconverged == () and "step limit" not in text
+
+
+def test_diagnosis_names_candidates_stopped_at_the_step_limit(system):
+    tests = {"whiteness": {"p_value": 1e-6, "lags_outside": 4},
+             "independence": {"p_value": 0.5}}
+    candidates = {
+        "extra_delay": {"lm_steps": 45, "lm_converged": False},
+        "offset_drift": {"lm_steps": 12, "lm_converged": True},
+        "coulomb_friction": {"lm_steps": 45, "lm_converged": False},
+        "branch_degree": {"lm_steps": 3, "lm_converged": False},  # failed: listed there
+        "nominal": {"bic": -10.0},
+    }
+    d = hbjax.Diagnosis(True, [], tests, candidates, 700, 300, system, verdict="unexplained",
+                        failed={"branch_degree": "the fit ended at NaN parameters (3 solver steps)"})
+    assert d.unconverged == ("extra_delay", "coulomb_friction")
+    text = d.summary()
+    assert ("Stopped at the solver's step limit (45 steps) before converging, judged where "
+            "they stopped: extra_delay, coulomb_friction.") in text
+    assert d.to_dict()["unconverged"] == ["extra_delay", "coulomb_friction"]

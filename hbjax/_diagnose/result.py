@@ -52,8 +52,11 @@ class Diagnosis:
     tests pass), ``"explained"`` (a finding), ``"unexplained"`` (no finding but whiteness
     or independence rejected; ``unexplained`` then names the rejecting tests and the regime
     variable that explains most of the residual). ``failed`` maps candidates whose fit
-    ended at non-finite numbers to the reason. ``split`` reports where the record was cut
-    into its fitting and held-out parts and how excited each is."""
+    ended at non-finite numbers to the reason; ``unconverged`` names the candidates whose
+    solver stopped at its step limit before converging (judged where they stopped: each
+    Levenberg-Marquardt step lowers the fitting criterion, so a converged fit would only
+    fit the fitting part better). ``split`` reports where the record was cut into its
+    fitting and held-out parts and how excited each is."""
 
     mismatch: bool
     findings: list
@@ -74,6 +77,13 @@ class Diagnosis:
     def best(self):
         return self.findings[0] if self.findings else None
 
+    @property
+    def unconverged(self) -> tuple:
+        """Candidates whose fit stopped at the solver's step limit without converging
+        (``candidates[name]["lm_converged"]`` is False), failed ones excepted."""
+        return tuple(k for k, c in self.candidates.items()
+                     if c.get("lm_converged") is False and k not in self.failed)
+
     def summary(self) -> display.Summary:
         """The residual tests and the findings with their held-out fits: a text that
         renders as HTML tables in Jupyter."""
@@ -92,6 +102,10 @@ class Diagnosis:
         if self.failed:
             lines.append("Failed candidates: " + "; ".join(
                 f"{k} ({why})" for k, why in self.failed.items()))
+        if self.unconverged:
+            steps = max(int(self.candidates[k].get("lm_steps") or 0) for k in self.unconverged)
+            lines.append(f"Stopped at the solver's step limit ({steps} steps) before converging, "
+                         "judged where they stopped: " + ", ".join(self.unconverged) + ".")
         head = list(lines)
         for i, f in enumerate(self.findings, 1):
             lines.append(f"{i}. {f.effect}: {f.physics}")
@@ -123,6 +137,7 @@ class Diagnosis:
             "verdict": self.verdict,
             "unexplained": self.unexplained,
             "failed": self.failed,
+            "unconverged": list(self.unconverged),
             "split": self.split,
             "best": self.best.effect if self.best else None,
             "findings": [f.to_dict() for f in self.findings],
