@@ -31,7 +31,7 @@ from .checks import giri, refined, result_code
 # count in one executable), so a study pads less than one group per length, not up to a
 # chunk. The records are simulated group by group inside the loop, so the cache argument
 # above is the group's; the chunk only sets how many dispatches a study takes (measured,
-# 200 realisations at N = 1000 and 4000: 84-89 ms with two groups per chunk, 78-81 ms with
+# 200 realisations at N = 1000 and 4000: 84-89 ms with two groups per chunk, 79-84 ms with
 # eight).
 #
 # CPU group: 16 to 32 realisations. Measured per realisation of the closed form inside one

@@ -83,7 +83,7 @@ def monte_carlo(
       ``y``) or a callable ``(key, length) -> record (length,)`` used as the equation error
       ``xi`` (times `noise_std`), e.g. AR(1) coloured noise.
     - `chunk_size`: realisations per device per chunk, the memory bound, computed as one
-      ``vmap`` (at least 2; the last chunk is padded). Default: on CPU two groups of
+      ``vmap`` (at least 2; the last chunk is padded). Default: on CPU eight groups of
       ``min(32, max(16, 2**18 // N))`` realisations, records that stay in cache, and only
       the groups that hold requested realisations run; on an accelerator one group of
       ``min(1024, max(16, 2**23 // N))``, enough to fill it. Neither `realisations` nor the
