@@ -10,9 +10,17 @@ import pytest
 # passes; measured on three compile-bound tests: 207 -> 158 s). Set before JAX starts its
 # backend; the workers and subprocesses inherit it. A user's own XLA_FLAGS setting of it
 # is kept. Benchmarks and users run the default level.
-_XLA_LEVEL = "--xla_backend_optimization_level"
-if _XLA_LEVEL not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_XLA_LEVEL}=0".strip()
+# XLA's older elemental emitters instead of its fusion emitters compile the diagnosis's
+# programs in about 40% of the time (backend compile of three study diagnoses: 23 -> 9 s;
+# the whole suite: 20:10 -> 15:32 on the 2-core machine, CPU 38 -> 29 min). Both emit the
+# same operations; the order of a few floating-point sums differs, so results agree to
+# rounding (a batched and an eager closed form, whose Vandermonde systems amplify rounding,
+# to 1e-8 relative) -- not a setting for users: it slows `refine`'s first compile and the
+# simulator (benchmarks/RESULTS.md, "Cold starts").
+_XLA_TEST_FLAGS = {"--xla_backend_optimization_level": "0", "--xla_cpu_use_fusion_emitters": "false"}
+for _flag, _value in _XLA_TEST_FLAGS.items():
+    if _flag not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
 
 import jax  # noqa: E402
 

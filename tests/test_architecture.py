@@ -188,6 +188,7 @@ def test_arrays_on_different_devices_are_refused_by_name():
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
                           env={**__import__("os").environ,
-                               "XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
+                               "XLA_FLAGS": __import__("os").environ.get("XLA_FLAGS", "")
+                               + " --xla_force_host_platform_device_count=2"})
     assert proc.returncode == 0, proc.stderr
     assert "different devices" in proc.stdout and "`recordings[0] y` on" in proc.stdout

@@ -103,7 +103,7 @@ _LAYOUT_SCRIPT = textwrap.dedent("""
 
 def _layout_run(devices):
     env = dict(os.environ, JAX_PLATFORMS="cpu",
-               XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+               XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}")
     out = subprocess.run([sys.executable, "-c", _LAYOUT_SCRIPT], env=env, capture_output=True,
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
