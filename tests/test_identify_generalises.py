@@ -13,7 +13,7 @@ import pytest
 
 import hbjax
 
-from tests.generators.paper_class import simulate_numpy
+from tests.generators.paper_class import predict_numpy, random_paper_system, simulate_numpy, to_hbjax
 
 
 QUICKSTART = hbjax.Hammerstein(
@@ -227,3 +227,50 @@ def test_fit_on_crossing_loops_reports_success_only_at_the_optimum():
                       / chi2.ppf(0.99, p))
     assert len(excess) >= 5, excess
     assert max(excess) <= 1.0, excess
+
+
+# --------------------------------------------------------------------------- the bound
+
+
+def test_crlb_equals_the_finite_difference_fisher_of_an_independent_predictor():
+    """`hbjax.crlb` on random paper-class systems equals the bound computed without hbjax:
+    the Fisher information ``J^T J / sigma^2`` of the generator's NumPy one-step predictor
+    (central differences), restricted to the paper's gauge ``P2(-h_m) - P1(h_m) = 1`` by a
+    basis ``U`` of the constraint's null space, ``C = U (U^T F U)^{-1} U^T``."""
+    for seed in range(3):
+        rng = np.random.default_rng(700 + seed)
+        s = random_paper_system(rng)
+        truth = hbjax.normalise(to_hbjax(s), s["h_m"])
+        theta = np.asarray(hbjax.flatten_params(truth))
+        na, nb, m = len(truth.arx.a), len(truth.arx.b), len(truth.backlash.c1)
+        design = hbjax.GiriDesign(n=na, m=m, h_m=s["h_m"])
+        T = 600
+        inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input,
+                                              design.staircase_input)]
+        sigma = 0.01 * np.ptp(np.concatenate([simulate_numpy(s, v)[0] for v in inputs]))
+        records = [(v, simulate_numpy(s, v, sigma * rng.normal(size=T))[0]) for v in inputs]
+
+        def predictor(th, v, y):
+            split = dict(a=th[:na], b=th[na:na + nb], c1=th[na + nb:na + nb + m],
+                         c2=th[na + nb + m:])
+            return predict_numpy(split, v, y)
+
+        fisher = np.zeros((theta.size, theta.size))
+        for v, y in records:
+            columns = []
+            for k in range(theta.size):
+                h = 1e-6 * max(1.0, abs(theta[k]))
+                up, down = theta.copy(), theta.copy()
+                up[k] += h
+                down[k] -= h
+                columns.append((predictor(up, v, y) - predictor(down, v, y)) / (2 * h))
+            jac = np.array(columns).T
+            fisher += jac.T @ jac / sigma**2
+        powers = np.arange(m)
+        gauge = np.concatenate([np.zeros(na + nb), -s["h_m"] ** powers, (-s["h_m"]) ** powers])
+        null = np.linalg.svd(gauge[None, :])[2][1:].T
+        expected = null @ np.linalg.inv(null.T @ fisher @ null) @ null.T
+        bound = np.asarray(hbjax.crlb(truth, records, noise_std=sigma, h_m=s["h_m"]).covariance)
+        np.testing.assert_allclose(np.diag(bound), np.diag(expected), rtol=1e-4)
+        scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))  # correlations
+        np.testing.assert_allclose(bound / scale, expected / scale, atol=1e-4)
