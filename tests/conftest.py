@@ -16,7 +16,7 @@ import pytest
 # same operations; the order of a few floating-point sums differs, so results agree to
 # rounding (a batched and an eager closed form, whose Vandermonde systems amplify rounding,
 # to 1e-8 relative) -- not a setting for users: it slows `refine`'s first compile and the
-# simulator (benchmarks/RESULTS.md, "Cold starts").
+# simulator (benchmarks/RESULTS.md, "Test suite duration"; docs/performance.md).
 _XLA_TEST_FLAGS = {"--xla_backend_optimization_level": "0", "--xla_cpu_use_fusion_emitters": "false"}
 for _flag, _value in _XLA_TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
