@@ -1,5 +1,7 @@
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 
 import numpy as np
@@ -18,9 +20,23 @@ import pytest
 # to 1e-8 relative) -- not a setting for users: it slows `refine`'s first compile and the
 # simulator (benchmarks/RESULTS.md, "Test suite duration"; docs/performance.md).
 _XLA_TEST_FLAGS = {"--xla_backend_optimization_level": "0", "--xla_cpu_use_fusion_emitters": "false"}
+
+
+def _xla_accepts(flags: str) -> bool:
+    """Whether this jaxlib starts with ``flags`` (XLA aborts the process on a flag it does
+    not know, and `pyproject.toml` allows jaxlib versions with and without the emitter
+    flag): a one-line subprocess, once per run -- the workers inherit the result."""
+    probe = subprocess.run([sys.executable, "-c", "import jax; jax.devices()"],
+                           env=dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu"),
+                           capture_output=True, timeout=300)
+    return probe.returncode == 0
+
+
 for _flag, _value in _XLA_TEST_FLAGS.items():
     if _flag not in os.environ.get("XLA_FLAGS", ""):
-        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
+        _flags = f"{os.environ.get('XLA_FLAGS', '')} {_flag}={_value}".strip()
+        if _xla_accepts(_flags):
+            os.environ["XLA_FLAGS"] = _flags
 
 import jax  # noqa: E402
 
