@@ -274,3 +274,55 @@ def test_crlb_equals_the_finite_difference_fisher_of_an_independent_predictor():
         np.testing.assert_allclose(np.diag(bound), np.diag(expected), rtol=1e-4)
         scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))  # correlations
         np.testing.assert_allclose(bound / scale, expected / scale, atol=1e-4)
+
+
+# --------------------------------------------------------------------------- free-run spread
+
+
+def test_free_run_std_matches_the_spread_of_the_free_runs_over_noise_draws():
+    """A statistic over 30 noise draws of the README quickstart: the spread of the refined
+    models' free runs on a validation input (standard deviation over the draws, sample by
+    sample) is the spread each result predicts from its own covariance."""
+    v_val = np.asarray(DESIGN.staircase_input(2000))
+    runs, predicted = [], []
+    for seed in range(100, 130):
+        records = quickstart_records(seed)
+        giri = hbjax.identify_giri(DESIGN, *[y for _, y in records])
+        res = hbjax.refine(giri.model, records, h_m=DESIGN.h_m)
+        runs.append(np.asarray(hbjax.simulate(res.model, v_val)))
+        predicted.append(np.asarray(res.free_run_std(v_val)))
+    spread = np.std(np.array(runs), axis=0, ddof=1)
+    # the median over the draws: a draw whose extrapolated branch decides the validation
+    # output at a few samples rightly predicts a far larger spread there (its own weakly
+    # determined direction), which a spread over draws of other models cannot show
+    predicted = np.median(np.array(predicted), axis=0)
+    assert np.all(np.isfinite(predicted)) and predicted.shape == v_val.shape
+    ratio = np.sqrt(np.mean(spread**2) / np.mean(predicted**2))
+    # 30 draws: the spread's own sampling error is about 1 / sqrt(58) = 13 %
+    assert 0.7 < ratio < 1.4, ratio
+    # and it follows the prediction from sample to sample: where the prediction is in its
+    # top quarter the spread is larger than where it is in its bottom quarter, in the
+    # predicted proportion to within 10 % (a prediction flat over the samples would be off
+    # by the whole predicted contrast, which is above 10 % on this input)
+    low, high = predicted <= np.quantile(predicted, 0.25), predicted >= np.quantile(predicted, 0.75)
+    measured_ratio = np.sqrt(np.mean(spread[high] ** 2) / np.mean(spread[low] ** 2))
+    predicted_ratio = np.sqrt(np.mean(predicted[high] ** 2) / np.mean(predicted[low] ** 2))
+    assert predicted_ratio > 1.1 and abs(np.log(measured_ratio / predicted_ratio)) < np.log(1.1), \
+        (measured_ratio, predicted_ratio)
+
+
+def test_free_run_std_is_infinite_where_an_unidentified_parameter_acts():
+    rng = np.random.default_rng(2)
+    v = np.full(600, 2.0)
+    y = np.asarray(hbjax.simulate(QUICKSTART, v)) + 0.05 * rng.normal(size=600)
+    res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.PRNGKey(0), starts=4,
+                    throw=False, progress=False)
+    assert res.unidentified
+    v_other = np.linspace(-4.0, 4.0, 300)
+    assert np.isinf(np.asarray(res.free_run_std(v_other))).any()
+    from hbjax._identify.uncertainty import free_run_std
+
+    with pytest.raises(ValueError, match="`covariance` must be 10 x 10"):
+        free_run_std(res.model, np.eye(3), v)
+    with pytest.raises(ValueError, match="`v`"):
+        res.free_run_std(np.ones((3, 3)))

@@ -18,8 +18,14 @@ from .._core.params import flatten_params, param_names
 from .._results import RESULTS
 from .criteria import branches_meet, unpack
 from .quality import (
-    SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
+    SIM_FIT_FLOOR,
+    core_consistent,
+    identified,
+    is_stable,
+    mark_unidentified,
+    simulation_fit,
 )
+from .uncertainty import free_run_std
 
 
 class RefinementError(ValueError):
@@ -61,6 +67,14 @@ class AbstractRefinement(eqx.Module):
     def unidentified(self) -> tuple:
         """Names (:func:`hbjax.param_names`) of the parameters the data do not identify."""
         return unidentified_names(self.model, self.identified)
+
+    def free_run_std(self, v, *, u0=0.0, y0=None) -> Float[Array, " time"]:
+        """Standard deviation, sample by sample, of the free run
+        ``hbjax.simulate(self.model, v, u0=u0, y0=y0)`` that this estimate's covariance
+        implies (first-order propagation; ``inf`` where an unidentified parameter moves the
+        output): how far a validation record's free run may honestly differ from it through
+        the estimation error alone (`docs/validation.md`)."""
+        return free_run_std(self.model, self.covariance, v, u0=u0, y0=y0)
 
     @property
     def extrapolated(self) -> dict:
