@@ -129,6 +129,14 @@ def test_unidentified_parameters_get_infinite_std():
         assert np.isinf(std[names.index(name)])
     assert {"c1_1", "c1_2", "c2_1", "c2_2"} <= set(res.unidentified)
     assert not np.any(std == 0)
+    # and the free run on inputs where those parameters act is as uncertain: inf
+    assert np.isinf(np.asarray(res.free_run_std(np.linspace(-4.0, 4.0, 300)))).any()
+    from hbjax._identify.uncertainty import free_run_std
+
+    with pytest.raises(ValueError, match="`covariance` must be 10 x 10"):
+        free_run_std(res.model, np.eye(3), v)
+    with pytest.raises(ValueError, match="`v`"):
+        res.free_run_std(np.ones((3, 3)))
 
 
 def test_fit_carries_the_free_run_fit_of_every_record():
@@ -309,20 +317,3 @@ def test_free_run_std_matches_the_spread_of_the_free_runs_over_noise_draws():
     predicted_ratio = np.sqrt(np.mean(predicted[high] ** 2) / np.mean(predicted[low] ** 2))
     assert predicted_ratio > 1.1 and abs(np.log(measured_ratio / predicted_ratio)) < np.log(1.1), \
         (measured_ratio, predicted_ratio)
-
-
-def test_free_run_std_is_infinite_where_an_unidentified_parameter_acts():
-    rng = np.random.default_rng(2)
-    v = np.full(600, 2.0)
-    y = np.asarray(hbjax.simulate(QUICKSTART, v)) + 0.05 * rng.normal(size=600)
-    res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.PRNGKey(0), starts=4,
-                    throw=False, progress=False)
-    assert res.unidentified
-    v_other = np.linspace(-4.0, 4.0, 300)
-    assert np.isinf(np.asarray(res.free_run_std(v_other))).any()
-    from hbjax._identify.uncertainty import free_run_std
-
-    with pytest.raises(ValueError, match="`covariance` must be 10 x 10"):
-        free_run_std(res.model, np.eye(3), v)
-    with pytest.raises(ValueError, match="`v`"):
-        res.free_run_std(np.ones((3, 3)))

@@ -18,12 +18,7 @@ from .._core.params import flatten_params, param_names
 from .._results import RESULTS
 from .criteria import branches_meet, unpack
 from .quality import (
-    SIM_FIT_FLOOR,
-    core_consistent,
-    identified,
-    is_stable,
-    mark_unidentified,
-    simulation_fit,
+    SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
 )
 from .uncertainty import free_run_std
 
