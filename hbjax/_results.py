@@ -55,6 +55,12 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "loop) and the model does not reproduce the data (free-run fit below the floor, "
         "see .sim_fit): more excitation around the meeting point or another degree m"
     )
+    no_input_effect = (
+        "the input path does not explain the output significantly better than the output's "
+        "own past values (see .residual_p[2], the p-value of no input effect): the records "
+        "show no effect of the input at this noise level (e.g. slow poles integrating the "
+        "equation noise), or the output is unrelated to it; more excitation or less noise"
+    )
 
 
 def message(result) -> str:

@@ -118,6 +118,7 @@ FIGURES = (
     ("noise_std", "noise std (equation error)"),
     ("sim_fit_pooled", "free-run fit on estimation data (%)"),
     ("sim_fit", "free-run fit per estimation record (%)"),
+    ("residual_p", "residual tests p (white, independent, no input)"),
     ("stable", "A stable (A3)"),
     ("branches_cross", "branches cross on the data"),
     ("stats.cost", "cost (mean squared residual)"),
@@ -152,8 +153,11 @@ def result_figures(result) -> dict:
     out = {}
     for path, label in FIGURES:
         value = _lookup(result, path)
-        if value is not None:
-            out[label] = value
+        c = concrete(value)
+        if value is None or (c is not None and c.dtype.kind == "f" and c.size
+                             and np.all(np.isnan(c))):
+            continue  # absent, or not computed (NaN: e.g. residual tests of a good fit)
+        out[label] = value
     if getattr(result, "initial_state", None) is not None:
         out["initial state"] = ("estimated" if result.initial_state == "estimate"
                                 else "zero (at rest)")

@@ -45,11 +45,13 @@ class FitResult(AbstractRefinement):
       static-gain normalisation ``B(1) = 1`` with ``P1`` the branch a rising input drives
       the output onto (see :func:`fit`).
     - `result`, `message`: result code of that start (:class:`hbjax.RESULTS`);
-      only stable models whose free-run fit clears the floor are successes, so the best
-      start is chosen among those (``RESULTS.unstable`` / ``poor_fit`` when none is).
+      only stable models with a significant input path whose free-run fit clears the
+      floor (or whose residual tests say the noise explains it, see :func:`hbjax.refine`)
+      are successes, so the best start is chosen among those (``RESULTS.unstable`` /
+      ``no_input_effect`` / ``poor_fit`` when none is).
     - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
       `stable`, `identified` (and `unidentified`), `active_ranges`, `data_range` (and
-      `extrapolated`), `core_finish`: as :class:`RefineResult`, for the chosen start.
+      `extrapolated`), `core_finish`, `residual_p` (and `noise_limited`): as :class:`RefineResult`, for the chosen start.
     - `starts_costs`: mean squared residual reached from every start, shape ``(starts,)``
       (``inf`` where a start failed).
     - `starts_params`: the local optima, shape ``(starts, p)`` (flatten order).
@@ -92,7 +94,7 @@ def _chosen(r, recordings, na: int, nb: int, m: int) -> dict:
         branches_cross=r.branches_cross, sim_fit=r.sim_fit, sim_fit_pooled=r.sim_fit_pooled,
         stable=r.stable, identified=jnp.where(swap, ident[swap_perm(na, nb, m)], ident),
         active_ranges=jnp.where(swap, r.active_ranges[::-1], r.active_ranges),
-        data_range=r.data_range, core_finish=r.core_finish)
+        data_range=r.data_range, core_finish=r.core_finish, residual_p=r.residual_p)
 
 
 def _starts_summary(ok, costs, params, best):

@@ -118,18 +118,20 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
     pooled over all records (each centred on its own mean), and the ranges of the input on
     which each branch decides the output.
 
-    Returns ``(fits, pooled, active)``: ``fits`` shape ``(records,)``; ``active`` shape
-    ``(2, 2)``, ``[[lo, hi] of P1, [lo, hi] of P2]`` over the inputs at the source
-    instants of the output (NaN for a branch that never decides it). An unstable model's
-    free run may overflow: its fit is then ``-inf``."""
+    Returns ``(fits, pooled, active, sources)``: ``fits`` shape ``(records,)``; ``active``
+    shape ``(2, 2)``, ``[[lo, hi] of P1, [lo, hi] of P2]`` over the inputs at the source
+    instants of the output (NaN for a branch that never decides it); ``sources`` the play
+    operator's output of each record (for :mod:`hbjax._identify.adequacy`). An unstable
+    model's free run may overflow: its fit is then ``-inf``."""
     na, nb = model.arx.na, model.arx.nb
     theta = _theta(model)
-    fits, num, den = [], 0.0, 0.0
+    fits, num, den, sources = [], 0.0, 0.0, []
     lo = jnp.full(2, jnp.inf)
     hi = jnp.full(2, -jnp.inf)
     for v, y, mask in map(unpack, recordings):
         # One play-operator pass gives the free run's input and the active ranges below.
         u, idx, on_p1, on_p2 = branch_sources(theta, v, na, nb, CORE_BAND)
+        sources.append(u)
         r = y - all_pole(model.arx.a, lag_sum(model.arx.b, u))
         if initial_state == "estimate" and mask is None:
             r = jnp.sqrt(_estimate(model, v, y).cost)  # the free run's error from it
@@ -152,7 +154,7 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
     pooled = 100.0 * (1.0 - jnp.sqrt(num) / jnp.sqrt(jnp.maximum(den, 1e-300)))
     never = ~jnp.isfinite(lo)
     active = jnp.stack([jnp.where(never, jnp.nan, lo), jnp.where(never, jnp.nan, hi)], axis=1)
-    return jnp.stack(fits), pooled, active
+    return jnp.stack(fits), pooled, active, sources
 
 
 def identified(jtj: Float[Array, "q q"], d: Float[Array, "p q"]) -> Bool[Array, " p"]:

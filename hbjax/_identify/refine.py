@@ -223,9 +223,13 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     a new length costs no new compilation and gives the unpadded record's results.
 
     The result is not ``successful`` (and ``throw=True`` raises) when the solver failed,
-    when ``A`` is unstable (``RESULTS.unstable``, assumption A3), or when the free-run fit
-    on the estimation records pooled is below `min_sim_fit` (``RESULTS.poor_fit``, or
-    ``RESULTS.closing_loop`` when the branches meet inside the data). Parameters the data
+    when ``A`` is unstable (``RESULTS.unstable``, assumption A3), when (prediction
+    criterion) the input path explains the output no better than the output's own past
+    (``RESULTS.no_input_effect``), or when the free-run fit on the estimation records
+    pooled is below `min_sim_fit` (``RESULTS.poor_fit``, or ``RESULTS.closing_loop`` when
+    the branches meet inside the data) and the residual tests do not say the equation
+    noise integrated by ``1/A`` explains it (``.noise_limited``, ``.residual_p``;
+    ``docs/validation.md``). Parameters the data
     do not identify (rank-deficient Gauss-Newton matrix: a branch that never decides the
     output, a constant input) get ``std = inf`` and are listed in ``.unidentified``.
 
@@ -283,7 +287,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     # On the host: an eager `!=` of two enumeration items is a device dispatch.
     if throw and int(code(res.result)) != int(code(RESULTS.successful)):
         quality = res.result in (RESULTS.unstable, RESULTS.poor_fit, RESULTS.closing_loop,
-                                 RESULTS.branches_cross)
+                                 RESULTS.branches_cross, RESULTS.no_input_effect)
         raise RefinementError(
             f"refine ({criterion} criterion) "
             f"{'gave an unacceptable model' if quality else 'did not converge'}: {res.message} "

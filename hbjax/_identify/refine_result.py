@@ -8,6 +8,7 @@ assembles its result with the same :func:`summarise` and :func:`finish`.
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
@@ -16,7 +17,8 @@ from .._core import display
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, param_names
 from .._results import RESULTS
-from .criteria import branches_meet, unpack
+from .adequacy import LEVEL, input_effect_p, noise_explains, whiteness_p
+from .criteria import PREDICTION, branches_meet, unpack
 from .quality import (
     SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
 )
@@ -46,6 +48,14 @@ class AbstractRefinement(eqx.Module):
     active_ranges: Float[Array, "2 2"]
     data_range: Float[Array, " 2"]
     core_finish: Bool[Array, ""]
+    residual_p: Float[Array, " 3"]
+
+    @property
+    def noise_limited(self) -> Bool[Array, ""]:
+        """Whether the free-run fit is below the floor only because the equation noise,
+        integrated by ``1/A``, dominates the output (:mod:`hbjax._identify.adequacy`): the
+        residual tests in `residual_p` pass, so the result may still be a success."""
+        return ~(self.sim_fit_pooled >= SIM_FIT_FLOOR) & noise_explains(self.residual_p)
 
     @property
     def message(self) -> str:
@@ -116,6 +126,15 @@ class RefineResult(AbstractRefinement):
       constrain directly.
     - `core_finish`: whether the solve was finished on the core operator because the
       labelled band's optimum crossed where the crossing decides the output.
+    - `residual_p`: p-values (all records pooled, :mod:`hbjax._identify.adequacy`) of the
+      one-step prediction errors' whiteness, their independence from past inputs (both
+      only where the free-run fit is below the floor, NaN otherwise; :func:`hbjax.resid`
+      gives the full analysis of any record), and of *no input effect* (the input path
+      against the output's own past; NaN for the simulation criterion). Above 0.01 the
+      last refuses the result (``RESULTS.no_input_effect``). A fit below the floor whose
+      errors pass the first two tests is the equation noise integrated by ``1/A``
+      dominating the output (poles near 1), not a bad model: it is not refused
+      (`noise_limited`).
     - `criterion`, `gauge`, `initial_state`: what was minimised, how the gain ambiguity
       was fixed and whether the initial state was estimated.
     """
@@ -156,14 +175,17 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
            min_sim_fit=SIM_FIT_FLOOR):
     """The result with its quality checks, first failing one wins after the solver's own
     code: ``branches_cross`` (a labelled band whose crossing decides an output; refine's
-    core finish never leaves one), ``unstable`` (A3), ``closing_loop`` / ``poor_fit``
-    (free-run fit on the estimation data below ``min_sim_fit``; ``closing_loop`` when the
+    core finish never leaves one), ``unstable`` (A3), ``no_input_effect`` (prediction
+    criterion: the input path is not significant against the output's own past,
+    :func:`hbjax._identify.adequacy.input_effect_p`), ``closing_loop`` / ``poor_fit``
+    (free-run fit on the estimation data below ``min_sim_fit``, unless the residual tests
+    say the equation noise integrated by ``1/A`` explains it; ``closing_loop`` when the
     branches meet inside the data). Parameters the Gauss-Newton matrix ``jtj`` does not
     identify get ``inf`` variance."""
     theta_s = par.free(flatten_params(fitted))
     consistent, _ = core_consistent(par.theta_scaled(theta_s), par.band, recordings, par.scale,
                                  par.na, par.nb)
-    fits, pooled, active = simulation_fit(fitted, recordings, par.initial_state)
+    fits, pooled, active, sources = simulation_fit(fitted, recordings, par.initial_state)
     stable = is_stable(fitted.arx.a)
     if jtj is None:
         ident = jnp.ones(par.size, bool)
@@ -176,7 +198,18 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
     good = result == RESULTS.successful
     result = RESULTS.where(good & ~stable, RESULTS.unstable, result)
     good = result == RESULTS.successful
+    if criterion == PREDICTION:
+        no_input = input_effect_p(fitted, recordings, sources, theta_s.shape[0])
+        result = RESULTS.where(good & ~(no_input < LEVEL), RESULTS.no_input_effect, result)
+        good = result == RESULTS.successful
+    else:  # an output-error fit is not a one-step predictor: the floor judges it alone
+        no_input = jnp.full((), jnp.nan, pooled.dtype)
     poor = ~(pooled >= min_sim_fit)
+    # Only a fit below the floor pays for the whiteness tests (under vmap both branches run).
+    white = jax.lax.cond(good & poor, lambda: whiteness_p(fitted, recordings, sources),
+                         lambda: jnp.full(2, jnp.nan, pooled.dtype))
+    residual_p = jnp.concatenate([white, no_input[None]])
+    poor = poor & ~noise_explains(residual_p)
     result = RESULTS.where(good & poor & closing, RESULTS.closing_loop, result)
     result = RESULTS.where(good & poor & ~closing, RESULTS.poor_fit, result)
     v_all = jnp.concatenate([v for v, _, _ in map(unpack, recordings)])
@@ -189,13 +222,19 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
     else:
         data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
     return RefineResult(fitted, result, stats, cov, noise_std, closing, fits, pooled, stable,
-                        ident, active, data_range, jnp.asarray(par.core), criterion,
+                        ident, active, data_range, jnp.asarray(par.core), residual_p, criterion,
                         par.gauge, par.initial_state)
 
 
 def describe(res) -> str:
     """The result code in words; for the quality codes, with the numbers."""
     text = RESULTS[res.result] or "success"
+    if res.result == RESULTS.successful and bool(res.noise_limited):
+        p = np.asarray(res.residual_p)
+        text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, below the "
+                 f"{SIM_FIT_FLOOR:g} % floor only because the equation noise integrated by "
+                 f"1/A dominates the output: residuals white, p = {p[0]:.2g}, independent of "
+                 f"the input, p = {p[1]:.2g}, input path significant, p = {p[2]:.2g})")
     if res.result == RESULTS.poor_fit or res.result == RESULTS.closing_loop:
         fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(res.sim_fit)))
         text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, per record: "

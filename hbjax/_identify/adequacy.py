@@ -1,0 +1,147 @@
+"""Whether a free-run fit below the floor is the noise's doing: residual tests, traceable.
+
+For the paper's equation-error model (eq. (10)), ``A(q^-1) y = B(q^-1) u + xi``, the free
+run ``y_sim`` of a model solves ``A y_sim = B u``, so its free-run error is exactly the
+one-step prediction error integrated by the model's own ``1/A``:
+``y - y_sim = e / A(q^-1)``. Where ``A(1)`` is small (poles near 1) white equation noise
+reaches the output amplified by ``1/A(1)`` at low frequency, and even the *true* system
+simulates worse than the record's mean: a free-run fit below 0 % is then no evidence of a
+bad model. What is evidence is the residual analysis (MATLAB's ``resid``, Ljung's
+validation tests): a model whose prediction errors are white (A6), independent of past
+inputs, and whose input path explains the output significantly better than the output's
+own past, has extracted what the records hold about the system.
+
+Everything here is traceable (jit/vmap) and never raises on values; the NumPy report of
+the same tests for one record is :func:`hbjax.resid`.
+"""
+
+import jax.numpy as jnp
+from jax.scipy.special import gammaincc
+from jaxtyping import Array, Float
+
+from .._misc import lag_sum
+from .criteria import unpack, where_valid
+
+#: Lags of the whiteness and independence tests (MATLAB ``resid``'s default).
+LAGS = 25
+#: Level of each test: a free-run fit below the floor is accepted as the noise's only when
+#: whiteness and independence are not rejected at it and the input path is significant at it.
+LEVEL = 0.01
+
+
+def chi2_sf(x, dof):
+    """Survival function of the chi-square distribution, traceable (``dof`` may be traced)."""
+    dof = jnp.maximum(jnp.asarray(dof, jnp.result_type(float)), 1.0)
+    return jnp.where(x > 0, gammaincc(dof / 2.0, jnp.maximum(x, 0.0) / 2.0), 1.0)
+
+
+def _correlations(x, z, lags: int):
+    """``sum_t x(t) z(t-k)`` for ``k = 0..lags`` (zero-filled signals of one length)."""
+    n = x.shape[0]
+    return jnp.stack([jnp.sum(x[k:] * z[:n - k]) for k in range(lags + 1)])
+
+
+def _one_step(model, v, y, u, mask):
+    """The one-step prediction errors ``e = A(q^-1) y - B(q^-1) u`` of a record (zero
+    outside the samples used: the first ``max(na, nb)`` depend on the unknown past),
+    the mask of the samples used and their number."""
+    skip = max(model.arx.na, model.arx.nb)
+    valid = jnp.arange(v.shape[0]) >= skip
+    valid = valid if mask is None else valid & mask
+    e = jnp.where(valid, y + lag_sum(model.arx.a, y) - lag_sum(model.arx.b, u), 0.0)
+    return e, valid, jnp.sum(valid).astype(y.dtype)
+
+
+def _moments(model, v, y, u, mask):
+    """``Z^T Z`` for the rows ``[y(t), y(t-1..na), u(t-1..nb), 1]``, ``t >= max(na, nb)``
+    (recorded samples only): one product gives the model's squared one-step error and the
+    output's own least-squares predictor (no factorisation of the N-row regression)."""
+    na, nb = model.arx.na, model.arx.nb
+    skip, T = max(na, nb), y.shape[0]
+    cols = ([y[skip - i:T - i] for i in range(na + 1)]
+            + [u[skip - j:T - j] for j in range(1, nb + 1)] + [jnp.ones(T - skip, y.dtype)])
+    z = jnp.stack(cols, axis=1)
+    if mask is not None:
+        z = z * mask[skip:, None].astype(y.dtype)
+    return z.T @ z
+
+
+def _errors_from_moments(model, moments):
+    """``(ssr, ssr_ar, n)``: the model's squared one-step error ``sum e^2``,
+    ``e = A(q^-1) y - B(q^-1) u``; that of the best linear predictor of ``y`` on its own
+    ``na`` past values and a constant; and the number of rows."""
+    na = model.arx.na
+    w = jnp.concatenate([jnp.ones(1), model.arx.a, -model.arx.b, jnp.zeros(1)])
+    ssr = w @ moments @ w
+    n = moments[-1, -1]
+    s = moments[:na + 1, -1]
+    c = moments[:na + 1, :na + 1] - jnp.outer(s, s) / jnp.maximum(n, 1.0)  # centred
+    if na == 0:
+        return ssr, c[0, 0], n
+    coef = jnp.linalg.lstsq(c[1:, 1:], c[1:, 0])[0]
+    return ssr, jnp.maximum(c[0, 0] - c[1:, 0] @ coef, 0.0), n
+
+
+def _whiteness(e, v, valid, n, lags: int):
+    """``(ljung_box, independence, dof)`` of one record's errors ``e``."""
+    e_c = jnp.where(valid, e - jnp.sum(e) / n, 0.0)
+    v_c = jnp.where(valid, v - jnp.sum(jnp.where(valid, v, 0.0)) / n, 0.0)
+    tiny = jnp.finfo(e.dtype).tiny
+    see = jnp.maximum(jnp.sum(e_c**2), tiny)
+    svv = jnp.maximum(jnp.sum(v_c**2), tiny)
+    r_e = _correlations(e_c, e_c, lags)[1:] / see
+    ljung_box = n * (n + 2) * jnp.sum(r_e**2 / (n - jnp.arange(1, lags + 1)))
+    # Cross-correlations with a coloured input are correlated through its autocorrelation
+    # R_v: N r^T R_v^+ r is chi-square with rank(R_v) degrees of freedom (as hbjax.resid).
+    r_ev = _correlations(e_c, v_c, lags) / jnp.sqrt(see * svv)
+    r_vv = _correlations(v_c, v_c, lags) / svv
+    idx = jnp.arange(lags + 1)
+    w, vec = jnp.linalg.eigh(r_vv[jnp.abs(idx[:, None] - idx[None, :])])
+    keep = w > 1e-8 * jnp.max(w)
+    z = vec.T @ r_ev
+    independence = n * jnp.sum(jnp.where(keep, z**2 / jnp.where(keep, w, 1.0), 0.0))
+    return ljung_box, independence, jnp.sum(keep)
+
+
+def input_effect_p(model, recordings, sources, free: int) -> Float[Array, ""]:
+    """p-value, all records pooled, of *no input effect*: the drop in squared one-step
+    error from the best linear predictor on the output's own ``na`` past values and a
+    constant (per record) to the model's, over ``sigma^2 = SSR / (N - free)``, against the
+    chi-square distribution with the input path's parameter count ``nb + 2m - 1``. Small:
+    the input explains the output. Large: the output is described as well by its own past
+    (e.g. a random walk fitted with poles near 1, whose free run can still beat the
+    record's mean by chance).
+
+    ``sources``: the play operator's output of each record (core operator), as
+    :func:`hbjax._identify.quality.simulation_fit` computed it; ``free``: the number of
+    free parameters."""
+    ssr = ssr_ar = n = 0.0
+    for (v, y, mask), u in zip(map(unpack, recordings), sources):
+        one, ar, count = _errors_from_moments(model, _moments(model, v, y, u, mask))
+        ssr, ssr_ar, n = ssr + jnp.maximum(one, 0.0), ssr_ar + ar, n + count
+    sigma2 = ssr / jnp.maximum(n - free, 1.0)
+    drop = (ssr_ar - ssr) / jnp.maximum(sigma2, jnp.finfo(sigma2.dtype).tiny)
+    p = chi2_sf(drop, model.arx.nb + 2 * model.backlash.m - 1)
+    return jnp.where(jnp.isfinite(p), p, jnp.nan)
+
+
+def whiteness_p(model, recordings, sources, lags: int = LAGS) -> Float[Array, " 2"]:
+    """p-values, all records pooled, of the one-step prediction errors' whiteness
+    (Ljung-Box, ``lags`` degrees of freedom per record) and of their independence from
+    past inputs ``v(t-k)``, ``k = 0..lags`` (``N r^T R_v^+ r``), as :func:`hbjax.resid`.
+    For a model fitted on the records both are slightly conservative."""
+    lb = ind = dof = 0.0
+    for (v, y, mask), u in zip(map(unpack, recordings), sources):
+        e, valid, n = _one_step(model, v, y, u, mask)
+        q, stat, rank = _whiteness(e, v, valid, n, lags)
+        lb, ind, dof = lb + q, ind + stat, dof + rank
+    p = jnp.stack([chi2_sf(lb, lags * len(recordings)), chi2_sf(ind, dof)])
+    return jnp.where(jnp.isfinite(p), p, jnp.nan)
+
+
+def noise_explains(p_values) -> Array:
+    """Whether residual tests ``p_values`` (``[whiteness, independence, no input effect]``)
+    say the records hold nothing more about the system than the model: white errors,
+    independent of the input, and a significant input path (NaN: not computed)."""
+    white, independent, no_input = p_values[0], p_values[1], p_values[2]
+    return (white >= LEVEL) & (independent >= LEVEL) & (no_input < LEVEL)
