@@ -19,11 +19,15 @@ import jax.numpy as jnp
 from jax.scipy.special import gammaincc
 from jaxtyping import Array, Float
 
+from .._core.arx import all_pole
 from .._misc import lag_sum
 from .criteria import unpack, where_valid
 
 #: Lags of the whiteness and independence tests (MATLAB ``resid``'s default).
 LAGS = 25
+#: Own-past lags of the output-error fit's input test: enough to whiten the output's own
+#: dynamics, so that an independent, slowly varying regressor cannot look significant.
+OWN_LAGS = 10
 #: Level of each test: a free-run fit below the floor is accepted as the noise's only when
 #: whiteness and independence are not rejected at it and the input path is significant at it.
 LEVEL = 0.01
@@ -122,6 +126,40 @@ def input_effect_p(model, recordings, sources, free: int) -> Float[Array, ""]:
     sigma2 = ssr / jnp.maximum(n - free, 1.0)
     drop = (ssr_ar - ssr) / jnp.maximum(sigma2, jnp.finfo(sigma2.dtype).tiny)
     p = chi2_sf(drop, model.arx.nb + 2 * model.backlash.m - 1)
+    return jnp.where(jnp.isfinite(p), p, jnp.nan)
+
+
+def simulated_input_effect_p(model, recordings, sources, free: int, lags: int = OWN_LAGS):
+    """p-value, all records pooled, of *no input effect* for an output-error fit (whose
+    one-step errors are not what it minimised): does the model's free run
+    ``y_sim = B/A u`` (from rest) predict ``y(t)`` beyond the output's own past? Per
+    record, ``y(t)`` is regressed by least squares on ``y(t-1..lags)`` and a constant, then
+    also on ``y_sim(t), ..., y_sim(t-lags)``; the drop in squared error over the larger
+    regression's ``sigma^2`` is chi-square with ``lags + 1`` degrees of freedom per record
+    (a Granger-type test: the output's own past is a full noise model, so a free run fitted
+    by chance to a slowly wandering output unrelated to the input adds nothing to it). The
+    ``free`` parameters fitted to ``y`` are added to the degrees of freedom."""
+    drop = ssr1 = n = 0.0
+    for (v, y, mask), u in zip(map(unpack, recordings), sources):
+        y_sim = all_pole(model.arx.a, lag_sum(model.arx.b, u))
+        T = y.shape[0]
+        rows = jnp.ones(T - lags, y.dtype) if mask is None else mask[lags:].astype(y.dtype)
+        own = jnp.stack([y[lags - i:T - i] for i in range(1, lags + 1)]
+                        + [jnp.ones(T - lags, y.dtype)], axis=1) * rows[:, None]
+        sim = jnp.stack([y_sim[lags - i:T - i] for i in range(lags + 1)], axis=1) * rows[:, None]
+        target = y[lags:] * rows
+        full = jnp.concatenate([own, sim], axis=1)
+        # Least squares on the rows themselves (not normal equations): lagged smooth
+        # signals are nearly collinear.
+        r0 = target - own @ jnp.linalg.lstsq(own, target)[0]
+        r1 = target - full @ jnp.linalg.lstsq(full, target)[0]
+        s0, s1 = jnp.sum(r0**2), jnp.sum(r1**2)
+        drop, ssr1, n = drop + jnp.maximum(s0 - s1, 0.0), ssr1 + s1, n + jnp.sum(rows)
+    params = len(recordings) * (2 * lags + 2)
+    sigma2 = ssr1 / jnp.maximum(n - params, 1.0)
+    # y_sim was itself fitted to y: its ``free`` parameters add their own chance agreement.
+    p = chi2_sf(drop / jnp.maximum(sigma2, jnp.finfo(sigma2.dtype).tiny),
+                len(recordings) * (lags + 1) + free)
     return jnp.where(jnp.isfinite(p), p, jnp.nan)
 
 

@@ -223,9 +223,9 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     a new length costs no new compilation and gives the unpadded record's results.
 
     The result is not ``successful`` (and ``throw=True`` raises) when the solver failed,
-    when ``A`` is unstable (``RESULTS.unstable``, assumption A3), when (prediction
-    criterion) the input path explains the output no better than the output's own past
-    (``RESULTS.no_input_effect``), or when the free-run fit on the estimation records
+    when ``A`` is unstable (``RESULTS.unstable``, assumption A3), when the input path
+    (for the simulation criterion, the free run) predicts the output no better than the
+    output's own past (``RESULTS.no_input_effect``), or when the free-run fit on the estimation records
     pooled is below `min_sim_fit` (``RESULTS.poor_fit``, or ``RESULTS.closing_loop`` when
     the branches meet inside the data) and the residual tests do not say the equation
     noise integrated by ``1/A`` explains it (``.noise_limited``, ``.residual_p``;

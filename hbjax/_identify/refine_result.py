@@ -17,7 +17,9 @@ from .._core import display
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, param_names
 from .._results import RESULTS
-from .adequacy import LEVEL, input_effect_p, noise_explains, whiteness_p
+from .adequacy import (
+    LEVEL, input_effect_p, noise_explains, simulated_input_effect_p, whiteness_p,
+)
 from .criteria import PREDICTION, branches_meet, unpack
 from .quality import (
     SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
@@ -129,8 +131,9 @@ class RefineResult(AbstractRefinement):
     - `residual_p`: p-values (all records pooled, :mod:`hbjax._identify.adequacy`) of the
       one-step prediction errors' whiteness, their independence from past inputs (both
       only where the free-run fit is below the floor, NaN otherwise; :func:`hbjax.resid`
-      gives the full analysis of any record), and of *no input effect* (the input path
-      against the output's own past; NaN for the simulation criterion). Above 0.01 the
+      gives the full analysis of any record; NaN for the simulation criterion), and of
+      *no input effect* (the input path against the output's own past; for the
+      simulation criterion the free run against it). Above 0.01 the
       last refuses the result (``RESULTS.no_input_effect``). A fit below the floor whose
       errors pass the first two tests is the equation noise integrated by ``1/A``
       dominating the output (poles near 1), not a bad model: it is not refused
@@ -175,9 +178,9 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
            min_sim_fit=SIM_FIT_FLOOR):
     """The result with its quality checks, first failing one wins after the solver's own
     code: ``branches_cross`` (a labelled band whose crossing decides an output; refine's
-    core finish never leaves one), ``unstable`` (A3), ``no_input_effect`` (prediction
-    criterion: the input path is not significant against the output's own past,
-    :func:`hbjax._identify.adequacy.input_effect_p`), ``closing_loop`` / ``poor_fit``
+    core finish never leaves one), ``unstable`` (A3), ``no_input_effect`` (the input
+    path, or for the simulation criterion the free run, is not significant against the
+    output's own past: :mod:`hbjax._identify.adequacy`), ``closing_loop`` / ``poor_fit``
     (free-run fit on the estimation data below ``min_sim_fit``, unless the residual tests
     say the equation noise integrated by ``1/A`` explains it; ``closing_loop`` when the
     branches meet inside the data). Parameters the Gauss-Newton matrix ``jtj`` does not
@@ -198,17 +201,21 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
     good = result == RESULTS.successful
     result = RESULTS.where(good & ~stable, RESULTS.unstable, result)
     good = result == RESULTS.successful
+    poor = ~(pooled >= min_sim_fit)
+    nan = jnp.full(3, jnp.nan, pooled.dtype)
     if criterion == PREDICTION:
         no_input = input_effect_p(fitted, recordings, sources, theta_s.shape[0])
         result = RESULTS.where(good & ~(no_input < LEVEL), RESULTS.no_input_effect, result)
         good = result == RESULTS.successful
-    else:  # an output-error fit is not a one-step predictor: the floor judges it alone
-        no_input = jnp.full((), jnp.nan, pooled.dtype)
-    poor = ~(pooled >= min_sim_fit)
-    # Only a fit below the floor pays for the whiteness tests (under vmap both branches run).
-    white = jax.lax.cond(good & poor, lambda: whiteness_p(fitted, recordings, sources),
-                         lambda: jnp.full(2, jnp.nan, pooled.dtype))
-    residual_p = jnp.concatenate([white, no_input[None]])
+        # Only a fit below the floor pays for the whiteness tests (under vmap both run).
+        white = jax.lax.cond(good & poor, lambda: whiteness_p(fitted, recordings, sources),
+                             lambda: nan[:2])
+        residual_p = jnp.concatenate([white, no_input[None]])
+    else:  # an output-error fit is not a one-step predictor: its free run is tested
+        no_input = simulated_input_effect_p(fitted, recordings, sources, theta_s.shape[0])
+        result = RESULTS.where(good & ~(no_input < LEVEL), RESULTS.no_input_effect, result)
+        good = result == RESULTS.successful
+        residual_p = jnp.concatenate([nan[:2], no_input[None]])
     poor = poor & ~noise_explains(residual_p)
     result = RESULTS.where(good & poor & closing, RESULTS.closing_loop, result)
     result = RESULTS.where(good & poor & ~closing, RESULTS.poor_fit, result)
