@@ -56,10 +56,11 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "see .sim_fit): more excitation around the meeting point or another degree m"
     )
     no_input_effect = (
-        "the input path does not explain the output significantly better than the output's "
-        "own past values (see .residual_p[2], the p-value of no input effect): the records "
-        "show no effect of the input at this noise level (e.g. slow poles integrating the "
-        "equation noise), or the output is unrelated to it; more excitation or less noise"
+        "the model's input path does not predict the output significantly better than the "
+        "output's own past values (see .residual_p[2], the p-value of no input effect): the "
+        "records show no effect of the input at this noise level (e.g. slow poles integrating "
+        "the equation noise, or an output unrelated to the input), or the estimate is a poor "
+        "local optimum (try other starts: hbjax.fit)"
     )
 
 

@@ -14,20 +14,24 @@ import numpy as np
 import pytest
 
 import hbjax
-
 from tests.generators.paper_class import (
-    INPUT_KINDS, random_input, random_paper_system, simulate_numpy, to_hbjax,
+    INPUT_KINDS,
+    random_input,
+    random_paper_system,
+    simulate_numpy,
+    to_hbjax,
 )
 
 N = 3000
 DRAWS = 16
-CASES = 16  # truths below the floor
+CASES = 12  # truths below the floor
 
 
 def _slow_system(rng):
-    """A random paper-class backlash with a slow ``A`` (order 1-2, real poles in
-    [0.99, 0.998]) and a ``B`` of as many taps (static gain 0.5-2)."""
-    sys = random_paper_system(rng, m=int(rng.integers(2, 4)))
+    """A random paper-class backlash (m = 3: one compiled program per order and criterion
+    keeps the test short) with a slow ``A`` (order 1-2, real poles in [0.99, 0.998]) and a
+    ``B`` of as many taps (static gain 0.5-2)."""
+    sys = random_paper_system(rng, m=3)
     poles = rng.uniform(0.99, 0.998, size=int(rng.integers(1, 3)))
     a = np.real(np.poly(poles))[1:]
     b = rng.uniform(0.5, 1.5, size=len(a))
@@ -46,10 +50,10 @@ def test_noise_dominated_slow_systems_are_not_refused():
         sys = _slow_system(rng)
         v = random_input(rng, INPUT_KINDS[int(rng.integers(len(INPUT_KINDS)))], N, 2 * sys["h_m"])
         det, _ = simulate_numpy(sys, v)
-        # equation noise whose integrated part has 1.5-2.5 times the input-driven output's
+        # equation noise whose integrated part has 1.2-2 times the input-driven output's
         # std (more, and the input's effect is no longer significant: no_input_effect)
         h = simulate_numpy(dict(sys, b=np.zeros(sys["nb"])), v, np.eye(1, N)[0])[0]
-        sigma = rng.uniform(1.5, 2.5) * np.std(det) / np.sqrt(np.sum(h**2))
+        sigma = rng.uniform(1.2, 2.0) * np.std(det) / np.sqrt(np.sum(h**2))
         y, _ = simulate_numpy(sys, v, sigma * rng.normal(size=N))
         if not _free_run_fit(y, det) < 0:
             continue  # the truth clears the floor on this draw: not the case under test
@@ -86,15 +90,16 @@ def test_outputs_unrelated_to_the_input_are_not_successes(criterion):
                                v, rng.normal(size=N))[0]
         y = y * np.std(det) / np.std(y)
         res = hbjax.refine(to_hbjax(sys), [(v, y)], criterion=criterion, throw=False)
-        codes.append(res.message[:40])
+        codes.append(res.message[:50])
         if res.message.startswith("success"):
             successes.append((float(res.sim_fit_pooled), np.asarray(res.residual_p).tolist()))
-        if d % 4 == 0:  # control: the system's own output, 2 % equation noise
-            noise = 0.02 * np.ptp(det) * rng.normal(size=N)
+        if d % 4 == 0:  # control: the system's own output, integrated noise 10 % of its std
+            h = simulate_numpy(dict(sys, b=np.zeros(sys["nb"])), v, np.eye(1, N)[0])[0]
+            noise = 0.1 * np.std(det) / np.sqrt(np.sum(h**2)) * rng.normal(size=N)
             own = hbjax.refine(to_hbjax(sys), [(v, simulate_numpy(sys, v, noise)[0])],
                                criterion=criterion, throw=False)
             controls.append(own.message[:60])
     # Under no input effect its p-value is about uniform: a success (p < 1 %) is rare.
     assert len(successes) <= 1, (successes, codes)
-    assert any(c.startswith("the input path does not explain") for c in codes), codes
+    assert any(c.startswith("the model's input path does not predict") for c in codes), codes
     assert all(c == "success" for c in controls), controls

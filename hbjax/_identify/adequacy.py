@@ -1,35 +1,45 @@
-"""Whether a free-run fit below the floor is the noise's doing: residual tests, traceable.
+"""What a result may call a success where its free-run fit cannot judge: residual tests,
+traceable, run inside every refinement (:func:`hbjax._identify.refine_result.finish`).
 
-For the paper's equation-error model (eq. (10)), ``A(q^-1) y = B(q^-1) u + xi``, the free
-run ``y_sim`` of a model solves ``A y_sim = B u``, so its free-run error is exactly the
-one-step prediction error integrated by the model's own ``1/A``:
-``y - y_sim = e / A(q^-1)``. Where ``A(1)`` is small (poles near 1) white equation noise
-reaches the output amplified by ``1/A(1)`` at low frequency, and even the *true* system
-simulates worse than the record's mean: a free-run fit below 0 % is then no evidence of a
-bad model. What is evidence is the residual analysis (MATLAB's ``resid``, Ljung's
-validation tests): a model whose prediction errors are white (A6), independent of past
-inputs, and whose input path explains the output significantly better than the output's
-own past, has extracted what the records hold about the system.
+**No input effect.** A model with poles near 1 fitted to an output *unrelated* to the input
+(a random walk, slow AR noise) integrates the input into another random walk, and the two
+can agree by chance (spurious regression): a free-run fit above the floor proves nothing
+then. :func:`input_effect_p` (prediction criterion) and :func:`simulated_input_effect_p`
+(simulation criterion) test whether the model predicts the output better than the
+output's own past.
+
+**A fit below the floor that the noise explains.** For the paper's equation-error model
+(eq. (10)), ``A(q^-1) y = B(q^-1) u + xi``, the free run ``y_sim`` of a model solves
+``A y_sim = B u``, so its free-run error is exactly the one-step prediction error
+integrated by the model's own ``1/A``: ``y - y_sim = e / A(q^-1)``. Where ``A(1)`` is small
+(poles near 1) white equation noise reaches the output amplified by ``1/A(1)`` at low
+frequency, and even the *true* system simulates worse than the record's mean: a free-run
+fit below 0 % is then no evidence of a bad model. What is evidence is the residual
+analysis (MATLAB's ``resid``, Ljung's validation tests, :func:`whiteness_p`): a model whose
+prediction errors are white (A6), independent of past inputs, and whose input path is
+significant, has extracted what the records hold about the system.
 
 Everything here is traceable (jit/vmap) and never raises on values; the NumPy report of
 the same tests for one record is :func:`hbjax.resid`.
 """
 
+import jax
 import jax.numpy as jnp
 from jax.scipy.special import gammaincc
 from jaxtyping import Array, Float
 
 from .._core.arx import all_pole
 from .._misc import lag_sum
-from .criteria import unpack, where_valid
+from .criteria import unpack
 
 #: Lags of the whiteness and independence tests (MATLAB ``resid``'s default).
 LAGS = 25
 #: Own-past lags of the output-error fit's input test: enough to whiten the output's own
 #: dynamics, so that an independent, slowly varying regressor cannot look significant.
 OWN_LAGS = 10
-#: Level of each test: a free-run fit below the floor is accepted as the noise's only when
-#: whiteness and independence are not rejected at it and the input path is significant at it.
+#: Level of each test: a result whose input effect is not significant at it is refused; a
+#: free-run fit below the floor is accepted as the noise's only when whiteness and
+#: independence are not rejected at it.
 LEVEL = 0.01
 
 
@@ -40,9 +50,15 @@ def chi2_sf(x, dof):
 
 
 def _correlations(x, z, lags: int):
-    """``sum_t x(t) z(t-k)`` for ``k = 0..lags`` (zero-filled signals of one length)."""
-    n = x.shape[0]
-    return jnp.stack([jnp.sum(x[k:] * z[:n - k]) for k in range(lags + 1)])
+    """``sum_t x(t) z(t-k)`` for ``k = 0..lags`` (zero-filled signals of one length). A
+    ``lax.map`` over the lags rather than ``lags + 1`` unrolled slices: one small loop in
+    the compiled refinement instead of a hundred operations to compile."""
+    t = jnp.arange(x.shape[0])
+
+    def at(k):
+        return jnp.sum(jnp.where(t >= k, x * jnp.roll(z, k), 0.0))
+
+    return jax.lax.map(at, jnp.arange(lags + 1))
 
 
 def _one_step(model, v, y, u, mask):
