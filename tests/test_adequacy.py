@@ -62,6 +62,9 @@ def test_noise_dominated_slow_systems_are_not_refused():
         if res.message.startswith("success"):
             successes += 1
             rescued += bool(res.noise_limited)  # below the floor, accepted by the tests
+            if res.noise_limited:
+                assert np.all(np.asarray(res.whiteness_p) >= 0.01), res.residual_p
+                assert float(res.input_effect_p) < 0.01 and float(res.sim_fit_pooled) < 0
             assert bool(res.noise_limited) or bool(res.sim_fit_pooled >= 0)
         else:
             refused.append(res.message[:120])
@@ -91,6 +94,8 @@ def test_outputs_unrelated_to_the_input_are_not_successes(criterion):
         y = y * np.std(det) / np.std(y)
         res = hbjax.refine(to_hbjax(sys), [(v, y)], criterion=criterion, throw=False)
         codes.append(res.message[:50])
+        if res.result == hbjax.RESULTS.no_input_effect:
+            assert float(res.input_effect_p) >= 0.01, res.residual_p
         if res.message.startswith("success"):
             successes.append((float(res.sim_fit_pooled), np.asarray(res.residual_p).tolist()))
         if d % 4 == 0:  # control: the system's own output, integrated noise 10 % of its std

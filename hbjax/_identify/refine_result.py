@@ -53,6 +53,18 @@ class AbstractRefinement(eqx.Module):
     residual_p: Float[Array, " 3"]
 
     @property
+    def input_effect_p(self) -> Float[Array, ""]:
+        """p-value of *no input effect* (``residual_p[2]``): at or above 0.01 the result is
+        ``RESULTS.no_input_effect``."""
+        return self.residual_p[..., 2]
+
+    @property
+    def whiteness_p(self) -> Float[Array, " 2"]:
+        """p-values of the one-step errors' whiteness and independence from past inputs
+        (``residual_p[:2]``; NaN unless the free-run fit is below the floor)."""
+        return self.residual_p[..., :2]
+
+    @property
     def noise_limited(self) -> Bool[Array, ""]:
         """Whether the free-run fit is below the floor only because the equation noise,
         integrated by ``1/A``, dominates the output (:mod:`hbjax._identify.adequacy`): the
