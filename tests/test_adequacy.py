@@ -65,6 +65,9 @@ def test_noise_dominated_slow_systems_are_not_refused():
             if res.noise_limited:
                 assert np.all(np.asarray(res.whiteness_p) >= 0.01), res.residual_p
                 assert float(res.input_effect_p) < 0.01 and float(res.sim_fit_pooled) < 0
+                # a floor the caller raised is kept as asked: no residual test overrules it
+                raised = hbjax.refine(to_hbjax(sys), [(v, y)], min_sim_fit=1.0, throw=False)
+                assert raised.result in (hbjax.RESULTS.poor_fit, hbjax.RESULTS.closing_loop)
             assert bool(res.noise_limited) or bool(res.sim_fit_pooled >= 0)
         else:
             refused.append(res.message[:120])

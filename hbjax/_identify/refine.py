@@ -244,7 +244,8 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     - `max_steps`, `rtol`, `atol`: Levenberg–Marquardt limits and tolerances (in the
       scaled free parameters and residuals).
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data
-      (default :data:`hbjax._identify.quality.SIM_FIT_FLOOR`, 0 %).
+      (default :data:`hbjax._identify.quality.SIM_FIT_FLOOR`, 0 %; below the default, the
+      residual tests may accept a fit the noise explains, never below a raised floor).
     - `initial_state`: ``"zero"`` (default: the paper's experiments start at rest) or
       ``"estimate"`` (records that do not start at rest, as MATLAB's
       ``'InitialCondition', 'e'``): the prediction errors of the first ``max(na, nb)``

@@ -219,8 +219,11 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
         no_input = input_effect_p(fitted, recordings, sources, theta_s.shape[0])
         result = RESULTS.where(good & ~(no_input < LEVEL), RESULTS.no_input_effect, result)
         good = result == RESULTS.successful
-        # Only a fit below the floor pays for the whiteness tests (under vmap both run).
-        white = jax.lax.cond(good & poor, lambda: whiteness_p(fitted, recordings, sources),
+        # The tests may overrule the default floor, not a floor the caller raised above it.
+        # Only a fit below it pays for the whiteness tests (under vmap both branches run).
+        default_floor = min_sim_fit <= SIM_FIT_FLOOR
+        white = jax.lax.cond(good & poor & default_floor,
+                             lambda: whiteness_p(fitted, recordings, sources),
                              lambda: nan[:2])
         residual_p = jnp.concatenate([white, no_input[None]])
     else:  # an output-error fit is not a one-step predictor: its free run is tested
