@@ -21,8 +21,9 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .._misc import lagged
-from .criteria import _internal, unpack, where_valid
+from .._core.backlash import power_columns
+from .._misc import lag_sum, lagged
+from .criteria import branch_sources, unpack, where_valid
 from .parametrisation import Parametrisation
 from .lm import levenberg_marquardt
 
@@ -49,28 +50,51 @@ def worth_it(na: int, nb: int, m: int) -> bool:
 def statistics(z, par: Parametrisation, recordings):
     """At free parameters ``z``: the Gram matrix ``sum_k M_k^T M_k`` over the records, the
     source code of every sample (``4 s + 2 [on P1] + [on P2]``; 0 while the output is still
-    ``u(-1)``) and the sum of squared prediction errors ``||M w||^2``.
+    ``u(-1)``) and the sum of squared prediction errors ``||M w||^2``
+    (:func:`source_codes`, :func:`gram_from_codes`)."""
+    codes, ssr = source_codes(z, par, recordings)
+    return gram_from_codes(codes, par, recordings), codes, ssr
 
-    The sum is taken from the residual itself: ``w^T (M^T M) w`` cancels ``||y||^2``
-    against the fit and loses the small costs of low-noise data (measured: 0.7% at noise
-    std 1e-5, 0 instead of 1e-16 at 1e-8)."""
+
+def source_codes(z, par: Parametrisation, recordings):
+    """The source code of every sample at ``z`` (see :func:`statistics`; records
+    concatenated) and the sum of squared prediction errors ``||M w||^2``: one play-operator
+    pass per record, no Gram.
+
+    The sum is taken from the residual itself, ``A(q^-1) y - B(q^-1) u`` (``= M w``):
+    ``w^T (M^T M) w`` cancels ``||y||^2`` against the fit and loses the small costs of
+    low-noise data (measured: 0.7% at noise std 1e-5, 0 instead of 1e-16 at 1e-8)."""
     theta = par.theta_scaled(z)
-    w = bilinear_weights(z, par)
-    na, nb, m = par.na, par.nb, par.m
-    gram, codes, ssr = 0.0, [], 0.0
+    a, b = theta[:par.na], theta[par.na:par.na + par.nb]
+    codes, ssr = [], 0.0
     for v, y, mask in map(unpack, recordings):
-        _, g, _, idx = _internal(theta, v / par.scale, na, nb, par.band)
+        u, idx, on_p1, on_p2 = branch_sources(theta, v / par.scale, par.na, par.nb, par.band)
+        r = y + lag_sum(a, y) - lag_sum(b, u)
+        ssr = ssr + jnp.sum(where_valid(mask, r, 0.0) ** 2)
+        code = 4 * idx + 2 * on_p1.astype(jnp.int32) + on_p2.astype(jnp.int32)
+        codes.append(where_valid(mask, code, 0))
+    return jnp.concatenate(codes), ssr
+
+
+def gram_from_codes(codes, par: Parametrisation, recordings):
+    """The Gram matrix ``sum_k M_k^T M_k`` of the sources ``codes`` (:func:`source_codes`).
+    ``M`` depends on the parameters only through the sources: a round that leaves every
+    source as it was keeps its Gram without this pass."""
+    na, nb, m = par.na, par.nb, par.m
+    gram, start = 0.0, 0
+    for v, y, mask in map(unpack, recordings):
+        code = jax.lax.dynamic_slice_in_dim(codes, start, v.shape[0])
+        start += v.shape[0]
+        xs = (v / par.scale)[code // 4]
+        powers = power_columns(xs, m)
+        g = jnp.concatenate([powers * ((code // 2) % 2)[:, None].astype(xs.dtype),
+                             powers * (code % 2)[:, None].astype(xs.dtype)], axis=1)
         cols = ([y[:, None]] + [lagged(y, i + 1)[:, None] for i in range(na)]
                 + [lagged(g, j + 1) for j in range(nb)])
         # A padded record's rows beyond its samples are zero: they add nothing to the Gram.
         design = where_valid(mask, jnp.concatenate(cols, axis=1), 0.0)
         gram = gram + jnp.matmul(design.T, design, precision=jax.lax.Precision.HIGHEST)
-        r = jnp.matmul(design, w, precision=jax.lax.Precision.HIGHEST)
-        ssr = ssr + jnp.sum(r**2)
-        # Columns 0 and m of G are the constant powers of P1 and P2: 1 on the active branch.
-        code = 4 * idx + 2 * g[:, 0].astype(jnp.int32) + g[:, m].astype(jnp.int32)
-        codes.append(where_valid(mask, code, 0))
-    return gram, jnp.concatenate(codes), ssr
+    return gram
 
 
 def bilinear_weights(z, par: Parametrisation):
@@ -116,8 +140,13 @@ def solve_by_statistics(par: Parametrisation, z0, recordings, *, max_steps, rtol
         sol = levenberg_marquardt(_reduced_residual, z, (par, gram_factor(gram)),
                                   max_steps=max_steps, rtol=rtol, atol=atol, norm=optx.max_norm,
                                   normal_cholesky=True)
-        new_gram, new_codes, ssr = statistics(sol.value, par, recordings)
+        new_codes, ssr = source_codes(sol.value, par, recordings)
         settled = jnp.all(new_codes == codes)
+        # Unchanged sources, unchanged M: the Gram is only recomputed where they moved
+        # (most refinements settle in their second round, which then costs one
+        # play-operator pass instead of a pass and a Gram).
+        new_gram = jax.lax.cond(settled, lambda: gram,
+                                lambda: gram_from_codes(new_codes, par, recordings))
         return (sol.value, new_gram, ssr, new_codes, rounds + 1,
                 steps + sol.stats["num_steps"], sol.result, settled)
 
