@@ -2,7 +2,7 @@
 timed warm on the same machine in one run, so that a refactoring's cost (or a new check's)
 is measured rather than inferred from figures taken on other machines at other loads.
 
-Run: ``.venv/bin/python benchmarks/against_earlier.py [COMMIT ...]`` (default: the last
+Run: ``.venv/bin/python benchmarks/against_earlier.py [--rounds N] [COMMIT ...]`` (default: the last
 commit of the flat, pre-subpackage layout, against the working tree). Each commit is
 checked out into a temporary git worktree; a child process per version and round imports
 that tree's ``hbjax`` and times:
@@ -113,7 +113,13 @@ def run_child(tree):
 def main():
     import numpy as np
 
-    earlier = sys.argv[1:] or [FLAT_LAYOUT]
+    args = sys.argv[1:]
+    rounds = ROUNDS
+    if "--rounds" in args:
+        i = args.index("--rounds")
+        rounds = int(args[i + 1])
+        del args[i:i + 2]
+    earlier = args or [FLAT_LAYOUT]
     head = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"],
                           capture_output=True, text=True, check=True).stdout.strip()
     dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "hbjax"],
@@ -125,7 +131,7 @@ def main():
         trees[current] = ROOT
         results = {name: [] for name in trees}
         try:
-            for r in range(ROUNDS):
+            for r in range(rounds):
                 for name, tree in trees.items():
                     results[name].append(run_child(tree))
                     print(f"round {r + 1} {name}: " + ", ".join(
@@ -145,7 +151,7 @@ def main():
     lines = [
         (f"Machine: {describe()}. 1-minute load average {load[0]:.1f} at the start and "
          f"{load[1]:.1f} at the end. Warm times (compilation excluded), median over "
-         f"{ROUNDS} rounds that alternate the versions; ratios = later / {earlier[0]} "
+         f"{rounds} rounds that alternate the versions; ratios = later / {earlier[0]} "
          "(above 1: slower). Target (architecture issue): no slowdown beyond 10 %."),
         "",
         ("| call | " + " | ".join(f"{n} (ms)" for n in med) + " | "
@@ -155,6 +161,10 @@ def main():
     for k in calls:
         lines.append(f"| {k} | " + " | ".join(f"{med[n][k] * 1e3:.1f}" for n in med) + " | "
                      + " | ".join(f"{med[n][k] / base[k]:.2f}" for n in later) + " |")
+    # The spread: each round's own ratio (same round, versions run one after the other).
+    lines += ["", "Ratio in each round (later / earlier, round by round): " + "; ".join(
+        f"{k} " + ", ".join(f"{b[k] / a[k]:.2f}" for a, b in
+                            zip(results[earlier[0]], results[later[0]])) for k in calls) + "."]
     lines += [
         "",
         ("Work the working tree does that the earlier version did not, in these calls: "
