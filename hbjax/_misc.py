@@ -8,6 +8,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.special import gammaincc
 
 
 def is_traced(x) -> bool:
@@ -242,3 +243,14 @@ def check_key(key, name: str = "key", *, optional: bool = False):
         f"`{name}` must be a single JAX PRNG key (jax.random.key(0) or "
         f"jax.random.PRNGKey(0)){' or None' if optional else ''}, got {what}."
     )
+
+
+def chi2_sf(x, dof):
+    """Survival function of the chi-square distribution with ``dof`` degrees of freedom
+    (at least 1): traceable (``x``, ``dof`` may be traced), NaN for a NaN statistic, 0 for
+    an infinite one. The one home of the residual tests' p-values: the compiled checks
+    inside every refinement and the NumPy reports (``float(chi2_sf(...))``) share it."""
+    x = jnp.asarray(x, jnp.result_type(float))
+    dof = jnp.maximum(jnp.asarray(dof, x.dtype), 1.0)
+    p = jnp.where(x > 0, gammaincc(dof / 2.0, jnp.maximum(x, 0.0) / 2.0), 1.0)
+    return jnp.where(jnp.isnan(x), jnp.nan, p)

@@ -12,18 +12,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from jax.scipy.special import gammaincc
+
+from .._misc import chi2_sf
 
 Z99 = 2.5758293035489004  # two-sided 99% normal quantile
-
-
-def chi2_sf(x: float, dof: int) -> float:
-    """Survival function of the chi-square distribution."""
-    if not math.isfinite(x):
-        return 0.0 if x > 0 else float("nan")
-    if x <= 0:
-        return 1.0
-    return float(gammaincc(dof / 2.0, x / 2.0))
 
 
 def correlation(x: np.ndarray, z: np.ndarray, lags: int) -> np.ndarray:
@@ -45,7 +37,7 @@ def whiteness(eps: np.ndarray, lags: int = 25) -> dict:
     q = n * (n + 2) * np.sum(r**2 / (n - np.arange(1, lags + 1)))
     return {"max_abs_acf": float(np.max(np.abs(r))), "band99": Z99 / math.sqrt(n),
             "lags_outside": int(np.sum(np.abs(r) > Z99 / math.sqrt(n))),
-            "ljung_box": float(q), "p_value": chi2_sf(q, lags)}
+            "ljung_box": float(q), "p_value": float(chi2_sf(q, lags))}
 
 
 def independence(eps: np.ndarray, u: np.ndarray, lags: int = 25) -> dict:
@@ -55,7 +47,7 @@ def independence(eps: np.ndarray, u: np.ndarray, lags: int = 25) -> dict:
     stat = n * float(np.sum(r**2))
     return {"max_abs_ccf": float(np.max(np.abs(r))), "band99": Z99 / math.sqrt(n),
             "lags_outside": int(np.sum(np.abs(r) > Z99 / math.sqrt(n))),
-            "statistic": stat, "p_value": chi2_sf(stat, lags + 1)}
+            "statistic": stat, "p_value": float(chi2_sf(stat, lags + 1))}
 
 
 def regime_dependence(res: np.ndarray, regime: np.ndarray, bins: int = 8) -> dict:

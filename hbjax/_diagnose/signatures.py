@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._misc import chi2_sf
 from . import residual_tests as rt
 
 
@@ -53,4 +54,4 @@ def change_scan(J, e, burn, grid=100):
     stats = np.asarray(stats)
     k = int(np.argmax(stats))
     return {"time": int(taus[k]) + burn, "statistic": float(stats[k]), "dof": int(p),
-            "p_value": rt.chi2_sf(float(stats[k]), p), "grid": len(taus)}
+            "p_value": float(chi2_sf(float(stats[k]), p)), "grid": len(taus)}

@@ -25,11 +25,10 @@ the same tests for one record is :func:`hbjax.resid`.
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import gammaincc
 from jaxtyping import Array, Float
 
 from .._core.arx import all_pole
-from .._misc import lag_sum
+from .._misc import chi2_sf, lag_sum
 from .criteria import unpack
 
 #: Lags of the whiteness and independence tests (MATLAB ``resid``'s default).
@@ -41,12 +40,6 @@ OWN_LAGS = 10
 #: free-run fit below the floor is accepted as the noise's only when whiteness and
 #: independence are not rejected at it.
 LEVEL = 0.01
-
-
-def chi2_sf(x, dof):
-    """Survival function of the chi-square distribution, traceable (``dof`` may be traced)."""
-    dof = jnp.maximum(jnp.asarray(dof, jnp.result_type(float)), 1.0)
-    return jnp.where(x > 0, gammaincc(dof / 2.0, jnp.maximum(x, 0.0) / 2.0), 1.0)
 
 
 def _correlations(x, z, lags: int):

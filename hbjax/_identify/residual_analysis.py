@@ -9,8 +9,8 @@ import numpy as np
 from .._core import display
 from .._core.model import AbstractModel, Hammerstein
 from .._core.simulate import predict
-from .._diagnose.residual_tests import Z99, chi2_sf, correlation
-from .._misc import positive_int
+from .._diagnose.residual_tests import Z99, correlation
+from .._misc import chi2_sf, positive_int
 from .compare import _record
 
 
@@ -115,5 +115,5 @@ def resid(model: AbstractModel, v, y=None, *, lags: int = 25) -> ResidualAnalysi
     q = float(n * (n + 2) * np.sum(r_e**2 / (n - np.arange(1, lags + 1))))
     r_x = correlation(e, v_np, lags)
     stat, dof = _independence(r_x, v_np, lags)
-    return ResidualAnalysis(e, r_e, r_x, Z99 / math.sqrt(n), q, chi2_sf(q, lags), stat,
-                            chi2_sf(stat, dof) if dof else 1.0, lags, skip, dt)
+    return ResidualAnalysis(e, r_e, r_x, Z99 / math.sqrt(n), q, float(chi2_sf(q, lags)), stat,
+                            float(chi2_sf(stat, dof)) if dof else 1.0, lags, skip, dt)
