@@ -16,8 +16,9 @@ that tree's ``hbjax`` and times:
 - ``monte_carlo``: a closed-form study, 2 lengths x 200 realisations;
 - ``diagnose``: the public ``hbjax.diagnose`` of the default model on 5000 samples.
 
-Each call is run once to compile, then best of 3 (``refine``: the median over the draws of
-the best of 3); rounds alternate the versions and the table reports the median over
+Each call is run once to compile, then best of 3 (``simulate`` and ``refine``, a few ms
+each: best of 15, ``refine`` the median over the draws; ``monte_carlo``: best of 5; on this
+shared 2-core machine a single call varies by tens of percent); rounds alternate the versions and the table reports the median over
 rounds, and the ratio later / earlier (above 1: slower). Calls whose defaults do more work
 in the later version are listed as such below the table.
 """
@@ -61,7 +62,7 @@ times = {}
 
 v = jax.random.uniform(jax.random.PRNGKey(0), (200, 10_000), minval=-4.0, maxval=4.0)
 sim = jax.jit(jax.vmap(lambda x: hbjax.simulate(system, x)))
-times["simulate"] = best(lambda: sim(v))
+times["simulate"] = best(lambda: sim(v), repeat=15)
 
 T = 10_000
 inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input,
@@ -72,7 +73,7 @@ for key in jax.random.split(jax.random.PRNGKey(100), 5):
           for x, k in zip(inputs, jax.random.split(key, 3))]
     start = hbjax.identify_giri(design, *ys).model
     recs = list(zip(inputs, ys))
-    per_draw.append(best(lambda: hbjax.refine(start, recs, h_m=4.0).model.arx.a))
+    per_draw.append(best(lambda: hbjax.refine(start, recs, h_m=4.0).model.arx.a, repeat=15))
 times["refine"] = float(np.median(per_draw))
 
 x = np.asarray(design.staircase_input(4000))
@@ -82,7 +83,7 @@ times["fit"] = best(lambda: hbjax.fit([(x, y)], na=2, nb=2, m=3,
 
 times["monte_carlo"] = best(lambda: jnp.asarray(hbjax.monte_carlo(
     system, design, noise_std=0.2, lengths=(1000, 4000), realisations=200,
-    key=jax.random.PRNGKey(2)).rmse))
+    key=jax.random.PRNGKey(2)).rmse), repeat=5)
 
 xd = np.asarray(jnp.sin(jnp.arange(5000) / 40.0) * 3.0
                 + jax.random.normal(jax.random.PRNGKey(3), (5000,)))

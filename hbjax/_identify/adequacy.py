@@ -65,27 +65,22 @@ def _one_step(model, v, y, u, mask):
     return e, valid, jnp.sum(valid).astype(y.dtype)
 
 
-def _moments(model, v, y, u, mask):
-    """``Z^T Z`` for the rows ``[y(t), y(t-1..na), u(t-1..nb), 1]``, ``t >= max(na, nb)``
-    (recorded samples only): one product gives the model's squared one-step error and the
-    output's own least-squares predictor (no factorisation of the N-row regression)."""
+def _errors(model, v, y, u, mask):
+    """``(ssr, ssr_ar, n)`` of one record over the samples ``t >= max(na, nb)`` (recorded
+    samples only): the model's squared one-step error ``sum e^2``,
+    ``e = A(q^-1) y - B(q^-1) u``; that of the best linear predictor of ``y`` on its own
+    ``na`` past values and a constant (from the moments ``Z^T Z`` of the rows
+    ``[y(t), y(t-1..na), 1]``, no factorisation of the N-row regression); the number of
+    rows."""
     na, nb = model.arx.na, model.arx.nb
     skip, T = max(na, nb), y.shape[0]
-    cols = ([y[skip - i:T - i] for i in range(na + 1)]
-            + [u[skip - j:T - j] for j in range(1, nb + 1)] + [jnp.ones(T - skip, y.dtype)])
-    z = jnp.stack(cols, axis=1)
-    if mask is not None:
-        z = z * mask[skip:, None].astype(y.dtype)
-    return z.T @ z
-
-
-def _errors_from_moments(model, moments):
-    """``(ssr, ssr_ar, n)``: the model's squared one-step error ``sum e^2``,
-    ``e = A(q^-1) y - B(q^-1) u``; that of the best linear predictor of ``y`` on its own
-    ``na`` past values and a constant; and the number of rows."""
-    na = model.arx.na
-    w = jnp.concatenate([jnp.ones(1), model.arx.a, -model.arx.b, jnp.zeros(1)])
-    ssr = w @ moments @ w
+    rows = jnp.arange(T) >= skip
+    rows = rows if mask is None else rows & mask
+    e = y + lag_sum(model.arx.a, y) - lag_sum(model.arx.b, u)
+    ssr = jnp.sum(jnp.where(rows, e, 0.0) ** 2)
+    z = jnp.stack([y[skip - i:T - i] for i in range(na + 1)] + [jnp.ones(T - skip, y.dtype)],
+                  axis=1) * rows[skip:, None].astype(y.dtype)
+    moments = z.T @ z
     n = moments[-1, -1]
     s = moments[:na + 1, -1]
     c = moments[:na + 1, :na + 1] - jnp.outer(s, s) / jnp.maximum(n, 1.0)  # centred
@@ -130,7 +125,7 @@ def input_effect_p(model, recordings, sources, free: int) -> Float[Array, ""]:
     free parameters."""
     ssr = ssr_ar = n = 0.0
     for (v, y, mask), u in zip(map(unpack, recordings), sources):
-        one, ar, count = _errors_from_moments(model, _moments(model, v, y, u, mask))
+        one, ar, count = _errors(model, v, y, u, mask)
         ssr, ssr_ar, n = ssr + jnp.maximum(one, 0.0), ssr_ar + ar, n + count
     sigma2 = ssr / jnp.maximum(n - free, 1.0)
     drop = (ssr_ar - ssr) / jnp.maximum(sigma2, jnp.finfo(sigma2.dtype).tiny)
