@@ -68,6 +68,8 @@ def test_noise_dominated_slow_systems_are_not_refused():
                 # a floor the caller raised is kept as asked: no residual test overrules it
                 raised = hbjax.refine(to_hbjax(sys), [(v, y)], min_sim_fit=1.0, throw=False)
                 assert raised.result in (hbjax.RESULTS.poor_fit, hbjax.RESULTS.closing_loop)
+                assert not bool(raised.noise_limited) and float(raised.min_sim_fit) == 1.0
+                assert "floor 1 %" in raised.message, raised.message  # the floor it was held to
             assert bool(res.noise_limited) or bool(res.sim_fit_pooled >= 0)
         else:
             refused.append(res.message[:120])

@@ -94,7 +94,8 @@ def _chosen(r, recordings, na: int, nb: int, m: int) -> dict:
         branches_cross=r.branches_cross, sim_fit=r.sim_fit, sim_fit_pooled=r.sim_fit_pooled,
         stable=r.stable, identified=jnp.where(swap, ident[swap_perm(na, nb, m)], ident),
         active_ranges=jnp.where(swap, r.active_ranges[::-1], r.active_ranges),
-        data_range=r.data_range, core_finish=r.core_finish, residual_p=r.residual_p)
+        data_range=r.data_range, core_finish=r.core_finish, residual_p=r.residual_p,
+        min_sim_fit=r.min_sim_fit)
 
 
 def _starts_summary(ok, costs, params, best):

@@ -51,6 +51,7 @@ class AbstractRefinement(eqx.Module):
     data_range: Float[Array, " 2"]
     core_finish: Bool[Array, ""]
     residual_p: Float[Array, " 3"]
+    min_sim_fit: Float[Array, ""]
 
     @property
     def input_effect_p(self) -> Float[Array, ""]:
@@ -69,7 +70,8 @@ class AbstractRefinement(eqx.Module):
         """Whether the free-run fit is below the floor only because the equation noise,
         integrated by ``1/A``, dominates the output (:mod:`hbjax._identify.adequacy`): the
         residual tests in `residual_p` pass, so the result may still be a success."""
-        return ~(self.sim_fit_pooled >= SIM_FIT_FLOOR) & noise_explains(self.residual_p)
+        return (~(self.sim_fit_pooled >= self.min_sim_fit) & (self.min_sim_fit <= SIM_FIT_FLOOR)
+                & noise_explains(self.residual_p))
 
     @property
     def message(self) -> str:
@@ -150,6 +152,8 @@ class RefineResult(AbstractRefinement):
       errors pass the first two tests is the equation noise integrated by ``1/A``
       dominating the output (poles near 1), not a bad model: it is not refused
       (`noise_limited`).
+    - `min_sim_fit`: the floor (%) this result was judged against (the `min_sim_fit` it was
+      asked for; the residual tests may overrule only the default floor).
     - `criterion`, `gauge`, `initial_state`: what was minimised, how the gain ambiguity
       was fixed and whether the initial state was estimated.
     """
@@ -244,7 +248,8 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
     else:
         data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
     return RefineResult(fitted, result, stats, cov, noise_std, closing, fits, pooled, stable,
-                        ident, active, data_range, jnp.asarray(par.core), residual_p, criterion,
+                        ident, active, data_range, jnp.asarray(par.core), residual_p,
+                        jnp.asarray(min_sim_fit, pooled.dtype), criterion,
                         par.gauge, par.initial_state)
 
 
@@ -254,13 +259,13 @@ def describe(res) -> str:
     if res.result == RESULTS.successful and bool(res.noise_limited):
         p = np.asarray(res.residual_p)
         text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, below the "
-                 f"{SIM_FIT_FLOOR:g} % floor only because the equation noise integrated by "
+                 f"{float(res.min_sim_fit):g} % floor only because the equation noise integrated by "
                  f"1/A dominates the output: residuals white, p = {p[0]:.2g}, independent of "
                  f"the input, p = {p[1]:.2g}, input path significant, p = {p[2]:.2g})")
     if res.result == RESULTS.poor_fit or res.result == RESULTS.closing_loop:
         fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(res.sim_fit)))
         text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, per record: "
-                 f"{fits}; floor {SIM_FIT_FLOOR:g} %)")
+                 f"{fits}; floor {float(res.min_sim_fit):g} %)")
     elif res.result == RESULTS.unstable:
         a = np.asarray(res.model.arx.a)
         radius = float(np.max(np.abs(np.roots(np.concatenate([[1.0], a]))))) if a.size else 0.0
