@@ -76,6 +76,7 @@ from tests.generators.paper_class import (  # noqa: E402
     simulate_numpy,
     to_hbjax,
 )
+from tests.generators.paper_runs import paper_records  # noqa: E402
 
 
 CATEGORIES = ("ok", "raised", "reported-failure", "local-minimum", "bad-accuracy")
@@ -166,13 +167,9 @@ def truth_refined(sys, records):
         return f"raised {type(e).__name__}"
 
 
-def run_paper(sys, rng, level, T, accuracy_factor):
-    design = hbjax.GiriDesign(n=sys["n"], m=sys["m"], h_m=sys["h_m"])
-    inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input, design.staircase_input)]
-    free = [simulate_numpy(sys, v)[0] for v in inputs]
-    sigma = level * float(np.ptp(np.concatenate(free)))
-    ys = [simulate_numpy(sys, v, sigma * rng.normal(size=T))[0] for v in inputs]
-    records = list(zip(inputs, ys))
+def run_paper(sys, rng, level, T, accuracy_factor, restarts=0):
+    design, records, sigma = paper_records(sys, rng, level, T)
+    inputs, ys = [v for v, _ in records], [y for _, y in records]
     p = free_parameters(sys)
     out = dict(sigma=sigma, p=p)
 
@@ -189,7 +186,7 @@ def run_paper(sys, rng, level, T, accuracy_factor):
     out["giri_excess"] = (ssr(g, records) - ssr(sys, records)) / sigma**2
     out["giri_distance"] = prediction_distance(g, sys, records) / sigma**2
     try:
-        ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
+        ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False, restarts=restarts)
     except Exception as e:  # noqa: BLE001
         return failed(category="raised", stage="refine", message=f"{type(e).__name__}: {e}")
     out["steps"] = int(ref.stats["steps"])
@@ -263,7 +260,7 @@ def study(args):
                 run_rng = np.random.default_rng(sys_rng.integers(2**63))
                 try:
                     if mode == "paper":
-                        r = run_paper(sys, run_rng, level, args.T, args.accuracy_factor)
+                        r = run_paper(sys, run_rng, level, args.T, args.accuracy_factor, args.restarts)
                     else:
                         scale = sys["scale"] if mode == "closing" else 2.0 * sys["h_m"]
                         r = run_fit(sys, run_rng, level, args.T, args.starts, args.fit_threshold, scale, args.accuracy_factor)
@@ -412,6 +409,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true",
                     help="fit modes: 8 starts and T = 3000 (the paper mode keeps T = 6000: its experiments are cheap)")
+    ap.add_argument("--restarts", type=int, default=0,
+                    help="paper mode: refine(..., restarts=K) (multi-start fit where the refinement is suspect)")
     ap.add_argument("--T", type=int, default=None, help="samples per experiment (default 6000; quick fit modes 3000)")
     ap.add_argument("--fit", action="store_true", help="hbjax.fit on ordinary inputs")
     ap.add_argument("--closing", action="store_true", help="hbjax.fit on closing-loop systems")
@@ -450,6 +449,8 @@ def main(argv=None):
     print(text)
     if args.write_results:
         title = {"paper": "paper mode", "fit": "fit mode", "closing": "closing-loop mode"}[mode]
+        if mode == "paper" and args.restarts:
+            title += f" with refine(..., restarts={args.restarts})"
         write_section(f"Identification on random systems, {title} (benchmarks/identify_random.py)",
                       results_markdown(mode, runs, args, elapsed, load_before, os.getloadavg()))
     if args.json:
