@@ -19,9 +19,9 @@ from tests.generators.paper_class import (
     polyval_asc,
     predict_numpy,
     random_paper_system,
-    simulate_numpy,
     to_hbjax,
 )
+from tests.generators.paper_runs import paper_records
 
 
 def _model_dict(model):
@@ -31,16 +31,6 @@ def _model_dict(model):
 
 def _ssr(sys, records):
     return float(sum(np.sum((y - predict_numpy(sys, v, y)) ** 2) for v, y in records))
-
-
-def _experiments(sys, rng, level, T=3000):
-    design = hbjax.GiriDesign(n=sys["n"], m=sys["m"], h_m=sys["h_m"])
-    inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input,
-                                         design.staircase_input)]
-    free = [simulate_numpy(sys, v)[0] for v in inputs]
-    sigma = level * float(np.ptp(np.concatenate(free)))
-    ys = [simulate_numpy(sys, v, sigma * rng.normal(size=T))[0] for v in inputs]
-    return design, list(zip(inputs, ys)), sigma
 
 
 def _band_holds(model, design):
@@ -59,7 +49,7 @@ def test_closed_form_is_a_band_and_refines_to_the_optimum():
         sys = random_paper_system(rng, n=2, m=5)
         p = 2 + 2 + 2 * 5 - 1
         for level in (0.01, 0.05):
-            design, records, sigma = _experiments(sys, rng, level)
+            design, records, sigma = paper_records(sys, rng, level, 3000)
             giri = hbjax.identify_giri(design, *[y for _, y in records], throw=False)
             assert giri.result == hbjax.RESULTS.successful
             assert _band_holds(giri.model, design)
@@ -77,7 +67,7 @@ def test_closed_form_is_a_band_and_refines_to_the_optimum():
 def test_band_projection_leaves_a_band_unchanged():
     rng = np.random.default_rng(3)
     sys = random_paper_system(rng, n=1, m=4)
-    design, records, _ = _experiments(sys, rng, 1e-6)
+    design, records, _ = paper_records(sys, rng, 1e-6, 3000)
     giri = hbjax.identify_giri(design, *[y for _, y in records], throw=False)
     # nearly noise-free: the paper's values already form a band, nothing moves
     assert float(giri.band_shift) == 0.0
@@ -112,7 +102,7 @@ def test_weak_v2_record_does_not_refuse_a_valid_system():
     refused = []
     for d in range(3):
         rng = np.random.default_rng(sys_rng.integers(2**63))
-        design, records, sigma = _experiments(sys, rng, 0.05, T=6000)
+        design, records, sigma = paper_records(sys, rng, 0.05, 6000)
         giri = hbjax.identify_giri(design, *[y for _, y in records], throw=False)
         if giri.result != hbjax.RESULTS.successful:
             refused.append(giri.message)
@@ -136,7 +126,7 @@ def test_refine_reaches_the_optimum_where_the_core_solve_crawls_along_a_kink():
     for _ in range(11):  # the benchmark's run 5 at the second noise level (0.05)
         sys_rng.integers(2**63)
     rng = np.random.default_rng(sys_rng.integers(2**63))
-    design, records, sigma = _experiments(sys, rng, 0.05, T=6000)
+    design, records, sigma = paper_records(sys, rng, 0.05, 6000)
     giri = hbjax.identify_giri(design, *[y for _, y in records])
     ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
     excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
@@ -154,7 +144,8 @@ def test_crlb_of_a_wide_design_with_high_degree_branches_is_finite():
     sys_rng = np.random.default_rng(rng.integers(2**63))
     sys = random_paper_system(sys_rng)
     assert sys["m"] == 5 and sys["h_m"] > 5
-    design, records, sigma = _experiments(sys, np.random.default_rng(sys_rng.integers(2**63)), 0.01)
+    design, records, sigma = paper_records(
+        sys, np.random.default_rng(sys_rng.integers(2**63)), 0.01, 3000)
     truth = hbjax.normalise(to_hbjax(sys), sys["h_m"])
     bound = hbjax.crlb(truth, records, noise_std=sigma, h_m=sys["h_m"])
     cov = np.asarray(bound.covariance)
