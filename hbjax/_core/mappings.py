@@ -26,7 +26,7 @@ def mapping_count() -> int | None:
     """The process's memory mappings, or ``None`` where ``/proc`` does not tell."""
     try:
         with open("/proc/self/maps", "rb") as maps:
-            return sum(1 for _ in maps)
+            return maps.read().count(b"\n")
     except OSError:
         return None
 

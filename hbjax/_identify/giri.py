@@ -106,7 +106,11 @@ def normalise(model: Hammerstein, h_m) -> Hammerstein:
     elif not math.isfinite(float(h_m)):
         raise ValueError(f"`h_m` must be finite, got {float(h_m)}.")
     bl = model.backlash
-    mu = gauge_factor(bl.c1, bl.c2, h_m)
+    if is_traced(h_m) or any(is_traced(c) for c in (bl.c1, bl.c2)):
+        mu = gauge_factor(bl.c1, bl.c2, h_m)
+    else:  # concrete: in NumPy (the eager JAX polynomial was most of monte_carlo's set-up)
+        mu = jnp.asarray(gauge_factor(np.asarray(bl.c1), np.asarray(bl.c2), float(h_m)),
+                         h_m.dtype)
     if is_traced(mu):
         mu = eqx.error_if(mu, mu == 0, "mu = P2(-h_m) - P1(h_m) is 0: cannot normalise.")
     elif float(mu) == 0.0:
