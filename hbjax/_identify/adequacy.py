@@ -126,7 +126,7 @@ def input_effect_p(model, recordings, sources, free: int) -> Float[Array, ""]:
     ssr = ssr_ar = n = 0.0
     for (v, y, mask), u in zip(map(unpack, recordings), sources):
         one, ar, count = _errors(model, v, y, u, mask)
-        ssr, ssr_ar, n = ssr + jnp.maximum(one, 0.0), ssr_ar + ar, n + count
+        ssr, ssr_ar, n = ssr + one, ssr_ar + ar, n + count
     sigma2 = ssr / jnp.maximum(n - free, 1.0)
     drop = (ssr_ar - ssr) / jnp.maximum(sigma2, jnp.finfo(sigma2.dtype).tiny)
     p = chi2_sf(drop, model.arx.nb + 2 * model.backlash.m - 1)
