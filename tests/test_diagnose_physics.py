@@ -86,8 +86,8 @@ def _open(effect):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", [_open("coulomb_friction"),
-                                    _open("level_dependent_dynamics"), "harmonic_distortion"])
+@pytest.mark.parametrize("effect", ["coulomb_friction", _open("level_dependent_dynamics"),
+                                    "harmonic_distortion"])
 def test_new_effect_named_over_seeds(effect):
     """A statistic over seeds: the right effect is the best finding on at least 2 of 3
     recordings. The seeds run in order until that is decided either way (two hits, or two

@@ -11,6 +11,8 @@ columns.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .effect_base import Candidate as Candidate, Context as Context, base_model as base_model
@@ -25,8 +27,24 @@ def _ints(delay=0, time=None):
 
 
 def build(ctx: Context, effects) -> list[Candidate]:
-    """One candidate per effect class (their starts from the context's signatures)."""
-    return [cls.candidate(ctx) for cls in effects]
+    """One candidate per effect class (their starts from the context's signatures), then
+    the anchored variant of each (:func:`anchored`), in the same order."""
+    free = [cls.candidate(ctx) for cls in effects]
+    return free + [anchored(c) for c in free if c.cls.anchorable]
+
+
+def anchored(cand: Candidate) -> Candidate:
+    """The variant of ``cand`` that holds the base parameters at the nominal values and
+    fits only the effect's own parameters.
+
+    Why both variants: where the nominal model is right apart from the effect, a joint
+    refit of the base parameters absorbs much of a weak effect within the range the record
+    excites (the refit ``parameter_mismatch`` then explains the fitting segment almost as
+    well, and the extension adds little to it), while the effect alone, on the nominal
+    base, explains it with a handful of parameters. The two variants are ranked by the
+    same information criterion."""
+    return dataclasses.replace(cand, anchored=True, starts=list(cand.starts),
+                               params=None if cand.params is None else np.array(cand.params))
 
 
 def fixed_b(lay: Layout, theta) -> int:
@@ -36,12 +54,12 @@ def fixed_b(lay: Layout, theta) -> int:
     return int(np.argmax(np.abs(lay.base(np.asarray(theta))[1])))
 
 
-def _columns(lay: Layout, free, levels, theta0) -> list[np.ndarray]:
+def _columns(lay: Layout, free, levels, theta0, base: bool = True) -> list[np.ndarray]:
     slots = lay.slots()
     theta0 = np.asarray(theta0)  # read on the host: eager slices of a device array are slow
     held = fixed_b(lay, theta0)
     skip = {slots["b"][0] + held, slots["db"][0] + held}
-    free = [(s, 1.0) for s in BASE_SLOTS] + list(free)
+    free = [(s, 1.0) for s in BASE_SLOTS] * base + list(free)
     # a clip level is freed only where the start clips (an open side stays open)
     free += [(s, 1.0) for s in levels if np.isfinite(float(lay.get(theta0, s)[0]))]
     cols = []
@@ -58,9 +76,10 @@ def _columns(lay: Layout, free, levels, theta0) -> list[np.ndarray]:
 
 def selection(lay: Layout, cand: Candidate, theta0, K: int) -> np.ndarray:
     """The ``(P, K)`` matrix mapping the free parameters (base + extension) into theta."""
-    cols = _columns(lay, cand.free, cand.levels, theta0)
+    cols = _columns(lay, cand.free, cand.levels, theta0, base=not cand.anchored)
     S = np.zeros((lay.size, K))
-    S[:, :len(cols)] = np.stack(cols, 1)
+    if cols:
+        S[:, :len(cols)] = np.stack(cols, 1)
     return S
 
 
@@ -75,7 +94,7 @@ def base_selection(lay: Layout, theta0, K: int) -> np.ndarray:
 def n_free(lay: Layout, cand: Candidate, theta) -> int:
     """Number of fitted parameters (the complexity in the information criterion)."""
     extra = 0 if cand.params is None else int(np.shape(cand.params)[-1])
-    return len(_columns(lay, cand.free, cand.levels, theta)) + extra
+    return len(_columns(lay, cand.free, cand.levels, theta, base=not cand.anchored)) + extra
 
 
 def to_model(ctx: Context, cand: Candidate, theta, ints):

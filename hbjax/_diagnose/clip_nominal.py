@@ -18,7 +18,7 @@ from .kernel import MAX_DELAY
 from .result import Finding
 
 #: key of the candidate table for the output clip fitted on top of the nominal model
-ON_NOMINAL = "output_saturation (nominal base)"
+ON_NOMINAL = "output_saturation (clip of the nominal free run)"
 #: held-out samples the clip must change before its held-out test is attempted
 MIN_CHANGED = 10
 

@@ -8,15 +8,19 @@ import math
 
 import numpy as np
 
+from .._misc import chi2_sf
 from .._misc import jsonable as _jsonable
 from . import candidates as cands
 from . import residual_tests as rt
+from .effect_base import ANCHORED
 from .result import Finding
 
 #: BIC margin a candidate must win by ("very strong" evidence on the Kass-Raftery scale)
 BIC_MARGIN = 10.0
 #: z of the held-out Diebold-Mariano test a candidate must reach
 DM_Z = 2.0
+#: level of the likelihood-ratio test that rejects an anchored variant's nominal base
+ANCHOR_ALPHA = 1e-3
 _PREDICTION_METRIC = ("colored_noise",)
 
 
@@ -51,6 +55,8 @@ def _margin_over_noise_rival(c, st, stats, names, dm, dm_pred, against, nom):
     is: its BIC margin over the noise model that could mimic that gain (``noise_rival`` of
     its class) if that margin exceeds BIC_MARGIN, else ``None``."""
     rival = c.cls.noise_rival
+    if rival is not None and c.anchored:
+        rival = rival + ANCHORED
     if rival is None or rival not in names:
         return None
     margin = stats[names.index(rival) + 1]["bic"] - st["bic"]
@@ -59,6 +65,27 @@ def _margin_over_noise_rival(c, st, stats, names, dm, dm_pred, against, nom):
             and margin > BIC_MARGIN):
         return margin
     return None
+
+
+def _base_consistency(c, st, stats, names, n):
+    """For an anchored candidate: the p-value of the likelihood-ratio test of its nominal
+    base against the same effect with the base refitted, ``n ln(SSE_held / SSE_free)``
+    about chi2 with as many degrees of freedom as base parameters were freed (``None``
+    when not anchored or the refitted variant failed).
+
+    An anchored variant says "the nominal model is right apart from this effect"; where
+    the data reject that (the base must move as well), the effect alone is not the
+    explanation, however few parameters it has: a small mismatch of many base parameters
+    is mimicked in part by a two-parameter effect, which then wins in BIC against a refit
+    that pays for every base parameter."""
+    if not c.anchored or c.effect not in names:
+        return None
+    free = stats[names.index(c.effect) + 1]
+    df = free["k"] - st["k"]
+    if df <= 0 or not (math.isfinite(free["bic"]) and free["sse"] > 0):
+        return None
+    lr = max(n * math.log(st["sse"] / free["sse"]), 0.0)
+    return float(chi2_sf(lr, df))
 
 
 def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y, v, n_fit, tests):
@@ -80,7 +107,7 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
     (:func:`_margin_over_noise_rival`): a mechanism whose class names a ``noise_rival`` is
     reported on a significant held-out prediction gain alone where it beats that noise
     model by BIC_MARGIN, and its finding's metric is then ``"prediction"``."""
-    names = [c.effect for c in candidates]
+    names = [c.label for c in candidates]
     nom = stats[0]
     ref_i = names.index("parameter_mismatch") + 1
     ref = stats[ref_i]
@@ -103,8 +130,10 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
         if not math.isfinite(st["bic"]):
             st.setdefault("decision", "failed: non-finite criterion")
             continue
-        against, j = ((nom, 0) if c.effect == "parameter_mismatch" or not refit_stable
-                      else (ref, ref_i))
+        # The refit and the anchored variants (base held at the nominal values) change
+        # the nominal model in one way each: their reference is the nominal model.
+        against, j = ((nom, 0) if c.effect == "parameter_mismatch" or c.anchored
+                      or not refit_stable else (ref, ref_i))
         noise_model = c.effect in _PREDICTION_METRIC
         metric = "prediction" if noise_model else "simulation"
         key = "fit_pred" if noise_model else "fit_sim"
@@ -116,8 +145,14 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
         dbic = against["bic"] - st["bic"]
         rival_margin = None
         st.update(dbic=dbic, dm_z=dm, dm_z_simulation=dm_sim_nom)
+        base_p = _base_consistency(c, st, stats, names, n_fit - ctx.burn)
+        if base_p is not None:
+            st["base_p"] = base_p
         if dbic <= BIC_MARGIN:
             why = f"BIC gain over its reference {dbic:.1f} <= {BIC_MARGIN:g}"
+        elif base_p is not None and base_p < ANCHOR_ALPHA:
+            why = (f"the nominal base is rejected with this effect (likelihood ratio against "
+                   f"the variant with the base refitted, p = {base_p:.2g} < {ANCHOR_ALPHA:g})")
         elif noise_model and not (dm > DM_Z and st[key] > against[key] and st[key] > nom[key]):
             why = "no significant held-out one-step-prediction gain"
         elif noise_model and dm_sim_ref < -DM_Z:
@@ -149,6 +184,7 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
             "delta_bic_vs_nominal": nom["bic"] - st["bic"],
             "dm_z": dm, "dm_z_simulation_vs_nominal": dm_sim_nom,
             "reference": "nominal" if j == 0 else "parameter_mismatch",
+            "base": "nominal (held)" if c.anchored else "refitted",
             "reference_fit": against[key], "parameters_fitted": st["k"], "bic": st["bic"],
             "kind": "noise model" if noise_model else "mechanism",
         }
@@ -166,4 +202,8 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
             parameters=_jsonable(text["parameters"]), model=model, metric=metric,
             fit_before=float(nom[key]), fit_after=float(st[key]), evidence=_jsonable(evidence))))
     findings.sort(key=lambda t: t[0])
-    return [f for _, f in findings]
+    # one finding per effect: the variant (base refitted or held) the criterion prefers
+    kept = {}
+    for _, f in findings:
+        kept.setdefault(f.effect, f)
+    return list(kept.values())

@@ -199,26 +199,26 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
         st["lm_steps"], st["lm_converged"] = int(s_), bool(o)
         why = vd.failure(st, theta_fit[i], c.params if c.generic else None)
         if why is not None:
-            failed[c.effect] = f"{why} ({int(s_)} solver steps)"
+            failed[c.label] = f"{why} ({int(s_)} solver steps)"
             st["bic"] = np.inf  # never ranked or reported
             st["decision"] = "failed: " + why
     findings = decide(ctx, candidates, stats, theta_fit, np.asarray(all_ints), eps_all, ysim_all,
                        u_all, y, v, n_fit, tests)
-    table = {c.effect: {k: stats[i + 1].get(k) for k in
-                        ("bic", "k", "fit_sim", "fit_pred", "lm_steps", "lm_converged",
-                         "dbic", "dm_z", "dm_z_simulation", "decision")}
+    table = {c.label: {k: stats[i + 1].get(k) for k in
+                        ("bic", "k", "sse", "fit_sim", "fit_pred", "lm_steps", "lm_converged",
+                         "dbic", "dm_z", "dm_z_simulation", "base_p", "decision")}
              for i, c in enumerate(candidates)}
-    table["nominal"] = {k: stats[0][k] for k in ("bic", "k", "fit_sim", "fit_pred")}
+    table["nominal"] = {k: stats[0][k] for k in ("bic", "k", "sse", "fit_sim", "fit_pred")}
     if fx.OutputSaturation in effects and not any(f.effect == "output_saturation"
                                                     for f in findings):
         row, finding = clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
-                                        [c.effect for c in candidates], criterion, tests)
+                                        [c.label for c in candidates], criterion, tests)
         if row is not None:
             table[ON_NOMINAL] = row
         if finding is not None:
             findings = sorted(findings + [finding], key=lambda f: f.evidence["bic"])
     if channels:
-        finding = _missing_input(model, y, ysim_all, stats, [c.effect for c in candidates],
+        finding = _missing_input(model, y, ysim_all, stats, [c.label for c in candidates],
                                  channels, n_fit, burn, criterion, table)
         if finding is not None:
             findings = sorted(findings + [finding], key=lambda f: f.evidence["bic"])

@@ -70,7 +70,9 @@ class Candidate:
     scale each (``levels``: slots freed only where the start is finite, e.g. a clip level
     that may stay open), the size ``grid`` of the discrete search behind the start
     (penalised in the BIC) and, for the generic path, the parameter starts ``params``
-    (rows) and their scales; after the fit ``params`` holds the fitted parameters."""
+    (rows) and their scales; after the fit ``params`` holds the fitted parameters.
+    ``anchored``: the base parameters stay at the nominal values (only the effect's own
+    parameters are fitted)."""
 
     cls: type
     starts: list
@@ -79,15 +81,25 @@ class Candidate:
     levels: tuple = ()
     params: np.ndarray | None = None
     scales: np.ndarray | None = None
+    anchored: bool = False
 
     @property
     def effect(self) -> str:
         return self.cls.name
 
     @property
+    def label(self) -> str:
+        """The effect's name; for the anchored variant (base parameters held at the
+        nominal values, only the effect's own parameters fitted) with ``ANCHORED``."""
+        return self.effect + ANCHORED if self.anchored else self.effect
+
+    @property
     def generic(self) -> bool:
         return self.params is not None
 
+
+#: suffix of an anchored candidate's label (its rows in ``Diagnosis.candidates``)
+ANCHORED = " (nominal base)"
 
 NO_CHANGE = 2**30  # change time "after the end of any record"
 
@@ -118,7 +130,10 @@ class AbstractEffect(AbstractModel):
     - :meth:`output_term` (added to the linear block's output) and/or :meth:`input_term`
       (added to the backlash output before the linear block);
     - :meth:`describe`: the physics sentence built from the fitted values;
-    - optionally `noise_rival` (``ClassVar[str]``, see below).
+    - optionally `noise_rival` (``ClassVar[str]``, see below);
+    - optionally `anchorable` (``ClassVar[bool]``, default ``True``): the diagnosis also
+      fits the effect with the base held at the nominal values (its *anchored* variant,
+      ``docs/diagnosis.md``); ``False`` for a class that is itself a change of the base.
 
     A mechanism is reported where it improves the held-out free run
     (:func:`hbjax._diagnose.decide.decide`). `noise_rival` names a noise model that gains
@@ -146,6 +161,7 @@ class AbstractEffect(AbstractModel):
     name: ClassVar[str]
     n_params: ClassVar[int] = 0
     noise_rival: ClassVar[str | None] = None
+    anchorable: ClassVar[bool] = True
 
     def __check_init__(self):
         if not isinstance(self.base, Hammerstein):

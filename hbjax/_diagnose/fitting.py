@@ -59,6 +59,11 @@ def _group(cls):
 _GROUPS = ((True, False), (False, True), (False, False))
 
 
+def _variants(cls) -> int:
+    """Candidates an effect class gives: itself and, if anchorable, its anchored variant."""
+    return 1 + bool(cls.anchorable)
+
+
 def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_steps):
     """Fit every candidate jointly with the base parameters. Returns ``(theta (n, P),
     steps (n,), converged (n,))``; generic candidates' fitted parameters go to
@@ -72,7 +77,7 @@ def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_
         idx = [i for i, c in enumerate(candidates) if kernel[i] and _group(c.cls) == group]
         if not idx:
             continue
-        size = sum(1 for cls in EFFECTS.values()
+        size = sum(_variants(cls) for cls in EFFECTS.values()
                    if issubclass(cls, AbstractKernelEffect) and _group(cls) == group)
         K = 2 * lay.p_base if group[1] else lay.p_base + 4
         th = [theta0[i] for i in idx]
@@ -88,7 +93,7 @@ def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_
     for i, c in enumerate(candidates):
         if kernel[i]:
             continue
-        S = cands.base_selection(lay, theta0[i], lay.p_base)
+        S = cands.base_selection(lay, theta0[i], lay.p_base) * (not c.anchored)
         th, params, st, cv = fit_terms(
             c.cls, lay, jnp.asarray(theta0[i]), jnp.asarray(S), jnp.asarray(c.params),
             jnp.asarray(c.scales), consts, v, y, burn, max_steps, criterion)
@@ -104,7 +109,8 @@ def evaluate_candidates(ctx: Context, candidates, theta_fit, all_ints, v, y, cri
     rows = [0] + [i + 1 for i, c in enumerate(candidates) if not c.generic]
     all_theta = jnp.concatenate([ctx.theta_nom[None], theta_fit])[np.asarray(rows)]
     its = jnp.asarray(all_ints)[np.asarray(rows)]
-    pad = len(EFFECTS) + 1 - len(rows)  # fixed batch: one compiled evaluation
+    # fixed batch: one compiled evaluation
+    pad = max(sum(_variants(cls) for cls in EFFECTS.values()) + 1 - len(rows), 0)
     out = [np.asarray(a)[:len(rows)] for a in evaluate_batch(
         lay, jnp.concatenate([all_theta, jnp.repeat(all_theta[:1], pad, 0)]),
         jnp.concatenate([its, jnp.repeat(its[:1], pad, 0)]), ctx.consts, v, y, criterion)]

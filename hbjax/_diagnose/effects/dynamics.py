@@ -28,6 +28,7 @@ class ParameterMismatch(AbstractKernelEffect):
     base: Hammerstein
 
     name: ClassVar[str] = "parameter_mismatch"
+    anchorable: ClassVar[bool] = False  # it is the refit of the base parameters alone
 
     @classmethod
     def candidate(cls, ctx):
