@@ -40,6 +40,32 @@ def test_friction_in_loop_matches_plain_loop():
     np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, v)), ref, atol=1e-10)
 
 
+def test_anchored_unmodeled_dynamics_is_a_lag_in_series():
+    """``A (1 - p q^-1) y = g B (1 - z q^-1) u``, ``g = (1 - p) / (1 - z)``: the nominal
+    poles and zeros kept, one pole and zero more, the static gain unchanged."""
+    model = _system()
+    v = np.repeat(np.random.default_rng(2).uniform(-3, 3, 30), 10)
+    lag = hbjax.EFFECTS["unmodeled_dynamics"].anchored_form
+    p, z = 0.7, -0.3
+    fx = lag(model, jnp.asarray(p), jnp.asarray(z))
+    assert fx.name == "unmodeled_dynamics"
+    u, s = np.zeros(len(v)), 0.0
+    for t in range(len(v)):
+        s = min(max(s, -0.3 + v[t]), 0.3 + v[t])
+        u[t] = s
+    g = (1 - p) / (1 - z)
+    a1, a2 = -0.8 - p, 0.8 * p
+    y = np.zeros(len(v))
+    for t in range(len(v)):
+        y[t] = (-a1 * (y[t - 1] if t >= 1 else 0.0) - a2 * (y[t - 2] if t >= 2 else 0.0)
+                + g * 0.2 * ((u[t - 1] if t >= 1 else 0.0) - z * (u[t - 2] if t >= 2 else 0.0)))
+    np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, v)), y, atol=1e-10)
+    # the same static gain as the nominal model on a long plateau
+    flat = np.full(400, 2.0)
+    np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, flat))[-1],
+                               np.asarray(hbjax.simulate(model, flat))[-1], rtol=1e-9)
+
+
 def test_level_dependent_matches_torricelli_tank():
     """First order: ``y(t) = y(t-1) + b u - k sqrt(y(t-1) - outlet)`` exactly."""
     model = _system()

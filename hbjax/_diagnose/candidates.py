@@ -30,12 +30,13 @@ def build(ctx: Context, effects) -> list[Candidate]:
     """One candidate per effect class (their starts from the context's signatures), then
     the anchored variant of each (:func:`anchored`), in the same order."""
     free = [cls.candidate(ctx) for cls in effects]
-    return free + [anchored(c) for c in free if c.cls.anchorable]
+    return free + [anchored(c, ctx) for c in free if c.cls.anchorable]
 
 
-def anchored(cand: Candidate) -> Candidate:
+def anchored(cand: Candidate, ctx: Context) -> Candidate:
     """The variant of ``cand`` that holds the base parameters at the nominal values and
-    fits only the effect's own parameters.
+    fits only the effect's own parameters (in the class's ``anchored_form`` where it has
+    one).
 
     Why both variants: where the nominal model is right apart from the effect, a joint
     refit of the base parameters absorbs much of a weak effect within the range the record
@@ -43,6 +44,8 @@ def anchored(cand: Candidate) -> Candidate:
     well, and the extension adds little to it), while the effect alone, on the nominal
     base, explains it with a handful of parameters. The two variants are ranked by the
     same information criterion."""
+    if cand.cls.anchored_form is not None:
+        return dataclasses.replace(cand.cls.anchored_form.candidate(ctx), anchored=True)
     return dataclasses.replace(cand, anchored=True, starts=list(cand.starts),
                                params=None if cand.params is None else np.array(cand.params))
 

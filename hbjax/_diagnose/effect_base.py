@@ -133,7 +133,10 @@ class AbstractEffect(AbstractModel):
     - optionally `noise_rival` (``ClassVar[str]``, see below);
     - optionally `anchorable` (``ClassVar[bool]``, default ``True``): the diagnosis also
       fits the effect with the base held at the nominal values (its *anchored* variant,
-      ``docs/diagnosis.md``); ``False`` for a class that is itself a change of the base.
+      ``docs/diagnosis.md``); ``False`` for a class that is itself a change of the base;
+    - optionally `anchored_form` (``ClassVar[type]``): another effect class (same `name`,
+      not in :data:`hbjax.EFFECTS`) fitted as the anchored variant, where the class's own
+      parametrisation needs the base to move to express the mechanism.
 
     A mechanism is reported where it improves the held-out free run
     (:func:`hbjax._diagnose.decide.decide`). `noise_rival` names a noise model that gains
@@ -162,6 +165,7 @@ class AbstractEffect(AbstractModel):
     n_params: ClassVar[int] = 0
     noise_rival: ClassVar[str | None] = None
     anchorable: ClassVar[bool] = True
+    anchored_form: ClassVar[type | None] = None
 
     def __check_init__(self):
         if not isinstance(self.base, Hammerstein):

@@ -59,9 +59,13 @@ def _group(cls):
 _GROUPS = ((True, False), (False, True), (False, False))
 
 
-def _variants(cls) -> int:
-    """Candidates an effect class gives: itself and, if anchorable, its anchored variant."""
-    return 1 + bool(cls.anchorable)
+def _variants(cls, kernel_only: bool = False) -> int:
+    """Candidates an effect class gives: itself and, if anchorable, its anchored variant
+    (``kernel_only``: those of them fitted in the kernel's batches)."""
+    anchored = cls.anchorable and not (kernel_only and cls.anchored_form is not None
+                                       and not issubclass(cls.anchored_form,
+                                                          AbstractKernelEffect))
+    return 1 + bool(anchored)
 
 
 def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_steps):
@@ -77,7 +81,7 @@ def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_
         idx = [i for i, c in enumerate(candidates) if kernel[i] and _group(c.cls) == group]
         if not idx:
             continue
-        size = sum(_variants(cls) for cls in EFFECTS.values()
+        size = sum(_variants(cls, kernel_only=True) for cls in EFFECTS.values()
                    if issubclass(cls, AbstractKernelEffect) and _group(cls) == group)
         K = 2 * lay.p_base if group[1] else lay.p_base + 4
         th = [theta0[i] for i in idx]

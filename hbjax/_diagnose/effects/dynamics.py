@@ -18,6 +18,7 @@ from ..effect_base import neutral_ints
 from ..explain import effect_windows, rounded
 from ..kernel import MAX_DELAY
 from ..kernel_effect import AbstractKernelEffect
+from .lag import SeriesLag
 
 
 class ParameterMismatch(AbstractKernelEffect):
@@ -105,6 +106,9 @@ class UnmodeledDynamics(AbstractKernelEffect):
     # changed; the held-out free run, dominated by the AR-filtered noise, often cannot show
     # it significantly (464 independent cases: 12 of 29 true unmodeled_dynamics refused so).
     noise_rival: ClassVar[str | None] = "colored_noise"
+    # with the base held, appended coefficients cannot put a pole in series with the
+    # nominal ones: the anchored variant is a lag in series (effects/lag.py)
+    anchored_form: ClassVar[type | None] = SeriesLag
 
     @classmethod
     def candidate(cls, ctx):
