@@ -93,6 +93,13 @@ def test_toy_effect_is_fitted_and_reported(recordings):
     assert f.fit_after > f.fit_before
     assert {"output_step", "offset_drift", "parameter_change", "parameter_mismatch"} <= set(d.candidates)
     assert d.candidates["output_step"]["k"] == d.candidates["parameter_mismatch"]["k"] + 2
+    # the anchored variant: base held at the nominal values, only the effect's parameters
+    held = d.candidates["output_step (nominal base)"]
+    assert held["k"] == 2 and 0.0 <= held["base_p"] <= 1.0
+    assert f.evidence["base"] in ("nominal (held)", "refitted")
+    if f.evidence["base"] == "nominal (held)":
+        np.testing.assert_array_equal(np.asarray(f.model.base.arx.a), np.asarray(rec.model.arx.a))
+        assert held["bic"] <= d.candidates["output_step"]["bic"]
     assert "output_step" not in hbjax.EFFECTS  # the registry did not change
     assert np.all(np.isfinite(np.asarray(hbjax.simulate(f.model, rec.v))))
 
