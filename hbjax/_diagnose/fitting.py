@@ -69,9 +69,10 @@ def _variants(cls, kernel_only: bool = False) -> int:
 
 
 def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_steps):
-    """Fit every candidate jointly with the base parameters. Returns ``(theta (n, P),
-    steps (n,), converged (n,))``; generic candidates' fitted parameters go to
-    ``candidate.params``."""
+    """Fit every candidate: jointly with the base parameters, or, for an anchored one,
+    with the base held at the nominal values (its selection has no base columns).
+    Returns ``(theta (n, P), steps (n,), converged (n,))``; generic candidates' fitted
+    parameters go to ``candidate.params``."""
     lay, consts, burn = ctx.lay, ctx.consts, ctx.burn
     n = len(candidates)
     theta_fit = [None] * n
