@@ -66,27 +66,54 @@ def test_anchored_unmodeled_dynamics_is_a_lag_in_series():
                                np.asarray(hbjax.simulate(model, flat))[-1], rtol=1e-9)
 
 
-def test_level_dependent_matches_torricelli_tank():
-    """First order: ``y(t) = y(t-1) + b u - k sqrt(y(t-1) - outlet)`` exactly."""
-    model = _system()
+def _level_loop(a, b, u, alpha, outlet, depth):
+    """The level law from the poles: each pole ``p`` moved to ``(1 + s x) / (1 - s x)``
+    with ``x = (p - 1) / (p + 1)``, static gain ``1/s`` times the nominal one."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    x = (np.roots(np.r_[1.0, a]) - 1) / (np.roots(np.r_[1.0, a]) + 1)
+    A1 = 1 + a.sum()
+    y = np.zeros(len(u))
+    for t in range(len(u)):
+        level = y[t - 1] if t >= 1 else 0.0
+        s = (depth / max(abs(level - outlet), 1e-3 * depth)) ** alpha
+        a_s = np.real(np.poly((1 + s * x) / (1 - s * x)))[1:]
+        g = (1 + a_s.sum()) / (s * A1)
+        acc = ((1 + a_s.sum()) * outlet - g * A1 * outlet) if t >= 1 else 0.0
+        acc -= sum(a_s[i] * y[t - 1 - i] for i in range(len(a)) if t - 1 - i >= 0)
+        acc += g * sum(b[j] * u[t - 1 - j] for j in range(len(b)) if t - 1 - j >= 0)
+        y[t] = acc
+    return y
+
+
+@pytest.mark.parametrize("a, b", [([-0.8], [0.2]), ([-1.5, 0.6], [0.05, 0.04]),
+                                  ([-1.2, 0.5, -0.08], [0.1, 0.0, 0.05])])
+def test_level_dependent_matches_the_pole_law(a, b):
+    model = hbjax.Hammerstein(hbjax.Backlash(c1=[-0.3, 1.0], c2=[0.3, 1.0]),
+                              hbjax.ARX(a=a, b=b))
     v = np.repeat(np.random.default_rng(1).uniform(1, 4, 30), 10)
     mean, std, depth = 2.0, 1.0, 2.5
     fx = hbjax.EFFECTS["level_dependent_dynamics"](
         model, jnp.asarray(0.5), jnp.asarray(np.log(depth / std)), jnp.asarray(mean),
         jnp.asarray(std))
-    outlet = mean - depth
-    k = 0.2 * np.sqrt(depth)  # (1 + a) depth^alpha
+    u = np.asarray(hbjax.play(model.backlash, v))
+    ref = _level_loop(a, b, u, 0.5, mean - depth, depth)
+    np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, v)), ref, atol=1e-9)
 
-    y, s, u = np.zeros(len(v)), 0.0, np.zeros(len(v))
-    for t in range(len(v)):
-        s = min(max(s, -0.3 + v[t]), 0.3 + v[t])
-        u[t] = s
-    prev, u_prev = 0.0, u[0]
-    for t in range(1, len(v)):  # y(0) = 0: the zero initial conditions of eq. (10)
-        h = max(prev - outlet, 1e-3 * depth)
-        y[t] = prev + 0.2 * u_prev - k * np.sqrt(h) - 0.2 * outlet
-        prev, u_prev = y[t], u[t]
-    np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, v)), y, atol=1e-10)
+
+def test_level_dependent_first_order_is_torricelli_in_equilibrium():
+    """On a long plateau the level settles where the outflow, ``k sqrt(y - outlet)``,
+    balances the inflow ``b u - A(1) outlet``: Torricelli's law."""
+    model = _system()
+    mean, std, depth = 2.0, 1.0, 2.5
+    fx = hbjax.EFFECTS["level_dependent_dynamics"](
+        model, jnp.asarray(0.5), jnp.asarray(np.log(depth / std)), jnp.asarray(mean),
+        jnp.asarray(std))
+    outlet = mean - depth
+    for level_in in (1.0, 2.5, 4.0):
+        y = float(np.asarray(hbjax.simulate(fx, np.full(600, level_in)))[-1])
+        u = level_in - 0.3  # the backlash output on a rising plateau
+        k = 0.2 * np.sqrt(depth)  # A(1) depth^alpha
+        assert k * np.sqrt(y - outlet) == pytest.approx(0.2 * u - 0.2 * outlet, rel=1e-8)
 
 
 def test_periodic_disturbance_at_an_input_harmonic_is_not_unrelated():

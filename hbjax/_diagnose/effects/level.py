@@ -3,31 +3,40 @@ through an orifice: Torricelli's outflow ~ sqrt(level))."""
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
 from ..explain import rounded
-from .recursive import AbstractRecursiveEffect, arx_scan
+from .recursive import AbstractRecursiveEffect
 
 
 class LevelDependentDynamics(AbstractRecursiveEffect):
-    """The restoring part of the linear block scales with the level above an outlet.
+    """Every pole's rate and the static gain of the linear block scale with the level
+    above an outlet.
 
-    Writing eq. (10) as ``y(t) = y(t-1) - R(t) - A(1) outlet + B u(t)`` with
-    ``R = (1 + a_1)(y(t-1) - outlet) + sum_{i>1} a_i (y(t-i) - outlet)`` (the outflow
-    above the outlet level), the outflow is scaled by the level:
+    At level ``y(t-1)`` the block of eq. (10) runs ``s(t)`` times faster and with ``1/s``
+    times its static gain, as a tank drained through an orifice does:
 
-        ``y(t) = y(t-1) - s(t) R(t) - A(1) outlet + B u(t)``,
-        ``s(t) = (depth / (y(t-1) - outlet))^alpha``, ``depth = y_mean - outlet``.
+        ``A_s(q^-1) (y(t) - outlet) = g(s) (B(q^-1) u(t) - A(1) outlet)``,
+        ``s(t) = (depth / |y(t-1) - outlet|)^alpha``, ``depth = y_mean - outlet``,
 
-    For a first-order block the outflow is ``k (y - outlet)^(1 - alpha)``: Torricelli's
-    law for ``alpha = 1/2``; locally the time constant and the gain both grow as
-    ``(y - outlet)^alpha``. ``s = 1`` at the mean level, so ``alpha = 0`` is the nominal
-    model. Fitted: ``alpha`` and ``log_depth`` (``depth = exp(log_depth) y_std``)."""
+    where ``A_s`` has the poles of ``A`` with their continuous-time rates multiplied by
+    ``s`` (through the bilinear map ``x = (z - 1) / (z + 1)``: pole ``p`` goes to
+    ``(1 + s x_p) / (1 - s x_p)``, stable for every ``s > 0``) and ``g = A_s(1) / (s A(1))``
+    sets the static gain to ``1/s`` times the nominal one. In equilibrium
+    ``s A(1) (y - outlet) = B(1) u - A(1) outlet``: the outflow goes as
+    ``(y - outlet)^(1 - alpha)``, Torricelli's law for ``alpha = 1/2``; locally every time
+    constant and the gain grow as ``(y - outlet)^alpha``. ``s = 1`` at the mean level, so
+    ``alpha = 0`` is the nominal model. Fitted: ``alpha`` and ``log_depth``
+    (``depth = exp(log_depth) y_std``). Scaling only the restoring term ``y(t-1) - outlet``
+    (an earlier form of this law) is the same for a first-order block but leaves the other
+    poles of a higher-order one in place, and was named on a third of such records."""
 
     base: Hammerstein
     alpha: Float[Array, ""]
@@ -63,18 +72,39 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
 
     def recursion(self, v, u, y_forced, noise):
         a, b = self.base.arx.a, self.base.arx.b
-        na = a.shape[0]
-        outlet = self.outlet
+        na, nb = a.shape[0], b.shape[0]
+        to_rates, from_rates = (jnp.asarray(m, a.dtype) for m in _rate_maps(na))
+        rates = to_rates @ jnp.concatenate([jnp.ones(1, a.dtype), a])
+        powers = jnp.arange(na, -1, -1, dtype=a.dtype)
         gain_a = 1.0 + jnp.sum(a)
+        outlet = self.outlet
+        inflow_offset = gain_a * outlet
+        zero = jnp.zeros((), u.dtype)
+        forced = y_forced is not None
+        ys = y_forced if forced else jnp.zeros_like(u)
 
-        def law(u_t, y_t, lags):
-            # the term entering y(t+1): lags before y(t+1) are (y_t,) + lags[:-1]
-            now = (y_t,) + lags[:-1]
-            full = sum(a[i] * now[i] for i in range(na))  # sum_i a_i y(t+1-i)
-            rest = now[0] + full - gain_a * outlet        # R(t+1)
-            return u_t, (1.0 - self.scaling(now[0])) * rest
+        def step(carry, x):
+            y_lags, u_lags, started = carry
+            u_t, xi_t, ym_t = x
+            s = self.scaling(y_lags[0])
+            full = from_rates @ (rates * s**powers)
+            a_s = full[1:] / full[0]
+            gain_s = jnp.sum(full) / full[0]          # A_s(1)
+            g = gain_s / (s * gain_a)                  # static gain 1/s of the nominal one
+            # the first sample has no past: zero, as eq. (10) from rest (the offset is
+            # part of the law, which starts acting at the second sample)
+            y_t = xi_t + started * (gain_s * outlet - g * inflow_offset)
+            for i in range(na):
+                y_t = y_t - a_s[i] * y_lags[i]
+            for j in range(nb):
+                y_t = y_t + g * b[j] * u_lags[j]
+            y_src = ym_t if forced else y_t
+            y_lags = (y_src,) + y_lags[:-1]
+            u_lags = ((u_t,) + u_lags[:-1]) if nb else u_lags
+            return (y_lags, u_lags, jnp.ones((), u.dtype)), y_t
 
-        return arx_scan(a, b, u, noise, y_forced, law)
+        init = ((zero,) * max(na, 1), (zero,) * nb, zero)
+        return jax.lax.scan(step, init, (u, noise, ys))[1]
 
     @classmethod
     def start(cls, ctx):
@@ -125,3 +155,21 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
         model = cls(base, jnp.asarray(0.5), jnp.asarray(np.log(depth / std)),
                     jnp.asarray(mean), jnp.asarray(std))
         return model, base, {"alpha": 0.5, "outlet": mean - depth}
+
+
+@functools.lru_cache(maxsize=None)
+def _rate_maps(na):
+    """Linear maps between the coefficients of ``A`` (``[1, a_1, ..., a_na]``, powers of
+    ``z`` from ``z^na`` down) and those of ``(1 - x)^na A((1 + x) / (1 - x))`` (powers
+    ``x^0 .. x^na``, ``x = (z - 1) / (z + 1)``), in which multiplying every root by ``s``
+    multiplies the coefficient of ``x^i`` by ``s^(na - i)``."""
+    P = np.polynomial.polynomial
+    to_rates = np.zeros((na + 1, na + 1))
+    from_rates = np.zeros((na + 1, na + 1))
+    for k in range(na + 1):
+        c = P.polymul(P.polypow([1.0, 1.0], na - k), P.polypow([1.0, -1.0], k))
+        to_rates[: len(c), k] = c
+    for i in range(na + 1):
+        c = P.polymul(P.polypow([-1.0, 1.0], i), P.polypow([1.0, 1.0], na - i))
+        from_rates[:, i] = np.pad(c, (0, na + 1 - len(c)))[::-1]  # row k: z^(na - k)
+    return to_rates, from_rates

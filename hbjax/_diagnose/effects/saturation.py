@@ -16,10 +16,19 @@ from ..kernel_effect import AbstractKernelEffect, put
 from ..residual_tests import plateaus, windows
 
 
-def _levels(x, side):
-    """Clip-level starts: the extreme value (a flat top sits exactly there) and quantiles."""
+def _levels(x, side, between=False):
+    """Clip-level starts: the extreme value (a flat top sits exactly there) and quantiles;
+    with ``between``, also levels at fractions of the way from the extreme to the median.
+    A signal that takes a few values (the internal signal under a PRBS-like or staircase
+    input) has its upper quantiles *at* its top value, so no quantile start clips it, and a
+    limit between two of its values is never started from; the fractions of the range
+    are."""
     qs = (1.0, 0.995, 0.98, 0.95, 0.9, 0.8) if side > 0 else (0.0, 0.005, 0.02, 0.05, 0.1, 0.2)
-    return [np.inf * side] + sorted({float(np.quantile(x, q)) for q in qs})
+    levels = {float(np.quantile(x, q)) for q in qs}
+    if between:
+        ext, mid = (float(np.max(x)) if side > 0 else float(np.min(x))), float(np.median(x))
+        levels |= {ext - f * (ext - mid) for f in (0.03, 0.1, 0.2, 0.35)}
+    return [np.inf * side] + sorted(levels)
 
 
 def _flat(y, side):
@@ -30,9 +39,9 @@ def _flat(y, side):
     return int(np.sum(np.abs(y - ext) <= tol)) >= 3
 
 
-def _clip_candidate(cls, ctx, signal, flat_first):
+def _clip_candidate(cls, ctx, signal, flat_first, between=False):
     lo, hi = cls.slots["lower"], cls.slots["upper"]
-    ups, lows = _levels(signal, +1), _levels(signal, -1)
+    ups, lows = _levels(signal, +1, between), _levels(signal, -1, between)
     if flat_first:
         # a measured clip is flat: start such a side at the extreme, leave others open
         flat_hi, flat_lo = _flat(signal, +1), _flat(signal, -1)
@@ -117,7 +126,7 @@ class InputSaturation(AbstractKernelEffect):
 
     @classmethod
     def candidate(cls, ctx):
-        return _clip_candidate(cls, ctx, ctx.u_nom, flat_first=False)
+        return _clip_candidate(cls, ctx, ctx.u_nom, flat_first=False, between=True)
 
     def describe(self, ctx, info):
         u = np.asarray(play_trajectory(self.base.backlash, np.asarray(info["v"]), 0.0))
