@@ -291,6 +291,50 @@ def test_plateau_signature():
     assert hbjax._diagnose.residual_tests.plateaus(np.minimum(smooth, 0.8), +1)["level"] == 0.8
 
 
+def test_plateau_signature_on_both_sides():
+    """A sensor clipped on both sides sits for long runs at both limits: each side's
+    signature is measured against runs at values other than the two extremes."""
+    rng = np.random.default_rng(1)
+    y = np.clip(np.sin(np.arange(3000) / 40) + 0.01 * rng.standard_normal(3000), -0.7, 0.8)
+    assert hbjax._diagnose.residual_tests.plateaus(y, +1)["level"] == 0.8
+    assert hbjax._diagnose.residual_tests.plateaus(y, -1)["level"] == -0.7
+
+
+def _sweep_through_resonance(clip):
+    """A swept sine through a resonance early in the record: the output is largest, and
+    clipped, only in the first half, so the held-out tail never reaches the clip."""
+    model = hbjax.Hammerstein(hbjax.Backlash(c1=[-0.2, 1.0], c2=[0.2, 1.0]),
+                              hbjax.ARX(a=[-1.7, 0.85], b=[0.1, 0.05]))
+    T = 3000
+    f = 0.03 * 10.0 ** (np.arange(T) / T)  # 0.03 -> 0.3 cycles per sample
+    v = 2.0 * np.sin(2 * np.pi * np.cumsum(f))
+    y0 = np.asarray(hbjax.simulate(model, v))
+    noise = 0.02 * np.std(y0) * np.random.default_rng(0).standard_normal(T)
+    y = np.asarray(hbjax.simulate(model, v, noise=noise))
+    if clip:
+        y = np.minimum(y, np.quantile(y0, 0.95))
+    return model, v, y
+
+
+@pytest.mark.parametrize("clip", [True, False])
+def test_clip_the_held_out_part_never_reaches_is_validated_by_folds(clip):
+    model, v, y = _sweep_through_resonance(clip)
+    d = hbjax.diagnose(model, v, y, progress=False)
+    if not clip:
+        assert d.verdict == "consistent" and not d.findings, d.summary()
+        return
+    assert np.all(y[d.n_fit:] < y.max())  # the premise: no clipped sample is held out
+    f = d.best
+    assert f is not None and f.effect == "output_saturation", d.summary()
+    folds = f.evidence["validation"]
+    assert folds["by"].startswith("5 folds") and folds["accepted"]
+    assert folds["dm_z"] > 2 and folds["fit_clip"] > folds["fit_nominal"]
+    # every fold's level was fitted without that fold, and all are near the true clip
+    y0 = np.asarray(hbjax.simulate(model, v))
+    for lv in folds["fold_levels"]:
+        assert lv["lower"] is None and abs(lv["upper"] - np.quantile(y0, 0.95)) < 0.05 * np.ptp(y0)
+
+
 @pytest.fixture(scope="module")
 def tanks():
     from hbjax._diagnose.nominal import identify_nominal

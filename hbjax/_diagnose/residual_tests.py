@@ -161,7 +161,8 @@ def plateaus(y: np.ndarray, side: int, *, min_samples: int = 5, min_run: int = 3
     A continuous signal plus noise never repeats a value; a quantised one repeats values
     at every level. So the signature requires at least ``min_samples`` samples at the
     extreme, a run of at least ``min_run`` there, and that run at least twice as long as
-    the longest run at any other value. Returns ``{"level", "samples", "longest_run",
+    the longest run at any value other than the two extremes (a sensor clipped on both
+    sides sits for long runs at its other limit too). Returns ``{"level", "samples", "longest_run",
     "longest_run_elsewhere", "windows"}`` (``windows``: the ``[start, stop)`` runs of two
     or more samples at the level) or ``None``."""
     y = np.asarray(y, dtype=float)
@@ -169,11 +170,13 @@ def plateaus(y: np.ndarray, side: int, *, min_samples: int = 5, min_run: int = 3
         return None
     tol = 1e-9 * (float(np.ptp(y)) or 1.0)
     level = float(np.max(y) if side > 0 else np.min(y))
+    other = float(np.min(y) if side > 0 else np.max(y))
     at = np.abs(y - level) <= tol
     runs = _runs_of_equal(y, tol)
     on = [(a, b) for a, b, val in runs if abs(val - level) <= tol]
     longest = max((b - a for a, b in on), default=0)
-    elsewhere = max((b - a for a, b, val in runs if abs(val - level) > tol), default=1)
+    elsewhere = max((b - a for a, b, val in runs
+                     if abs(val - level) > tol and abs(val - other) > tol), default=1)
     if int(at.sum()) < min_samples or longest < min_run or longest < 2 * elsewhere:
         return None
     return {"level": level, "samples": int(at.sum()), "longest_run": int(longest),
