@@ -1,8 +1,10 @@
 """The output clip fitted on top of the nominal model (base parameters held fixed), with a
-model-free confirmation: plateaus at the same level in the held-out part."""
+model-free confirmation: plateaus at the same level in the held-out part, or, where the
+held-out part never reaches the clip, in two folds of a cross-validation over the record."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import jax.numpy as jnp
@@ -193,7 +195,7 @@ def _folds(y, y_nom, fit_levels, sig, b0):
     edges = np.linspace(b0, T, N_FOLDS + 1).astype(int)
     y_cv = np.array(y_nom, dtype=float)
     fold_levels = []
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in itertools.pairwise(edges):
         others = np.ones(T, bool)
         others[:b0] = False
         others[a:b] = False
@@ -205,7 +207,7 @@ def _folds(y, y_nom, fit_levels, sig, b0):
     for side, s in (("upper", 1), ("lower", -1)):
         if sig[side] is not None:
             seen[side] = sum(
-                1 for a, b in zip(edges[:-1], edges[1:])
+                1 for a, b in itertools.pairwise(edges)
                 if (p := rt.plateaus(y[a:b], s)) is not None
                 and abs(p["level"] - sig[side]["level"]) <= tol)
     changed = y_cv[b0:] != y_nom[b0:]

@@ -6,14 +6,13 @@ from __future__ import annotations
 import functools
 from typing import ClassVar
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
 from ..explain import rounded
-from .recursive import AbstractRecursiveEffect
+from .recursive import AbstractRecursiveEffect, arx_scan
 
 
 class LevelDependentDynamics(AbstractRecursiveEffect):
@@ -72,7 +71,7 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
 
     def recursion(self, v, u, y_forced, noise):
         a, b = self.base.arx.a, self.base.arx.b
-        na, nb = a.shape[0], b.shape[0]
+        na = a.shape[0]
         to_rates, from_rates = (jnp.asarray(m, a.dtype) for m in _rate_maps(na))
         rates = to_rates @ jnp.concatenate([jnp.ones(1, a.dtype), a])
         # the coefficients of A_s are polynomials in s: A_s = scaled @ [1, s, ..., s^na]
@@ -86,15 +85,9 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
         total = [total[k] for k in range(na + 1)]
         gain_a = 1.0 + jnp.sum(a)
         outlet = self.outlet
-        inflow_offset = gain_a * outlet
-        zero = jnp.zeros((), u.dtype)
-        forced = y_forced is not None
-        ys = y_forced if forced else jnp.zeros_like(u)
 
-        def step(carry, x):
-            y_lags, u_lags, started = carry
-            u_t, xi_t, ym_t = x
-            s = self.scaling(y_lags[0])
+        def law(level):
+            s = self.scaling(level)
             s_pows = [jnp.ones_like(s)]
             for _ in range(na):
                 s_pows.append(s_pows[-1] * s)
@@ -106,20 +99,10 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
             a_s = [poly(rows[i + 1]) * inv_lead for i in range(na)]
             gain_s = poly(total) * inv_lead   # A_s(1)
             g = gain_s / (s * gain_a)         # static gain 1/s times the nominal one
-            # the first sample has no past: zero, as eq. (10) from rest (the offset is
-            # part of the law, which starts acting at the second sample)
-            y_t = xi_t + started * (gain_s * outlet - g * inflow_offset)
-            for i in range(na):
-                y_t = y_t - a_s[i] * y_lags[i]
-            for j in range(nb):
-                y_t = y_t + g * b[j] * u_lags[j]
-            y_src = ym_t if forced else y_t
-            y_lags = (y_src,) + y_lags[:-1]
-            u_lags = ((u_t,) + u_lags[:-1]) if nb else u_lags
-            return (y_lags, u_lags, jnp.ones((), u.dtype)), y_t
+            return a_s, g, (gain_s - g * gain_a) * outlet
 
-        init = ((zero,) * max(na, 1), (zero,) * nb, zero)
-        return jax.lax.scan(step, init, (u, noise, ys))[1]
+        return arx_scan(a, b, u, noise, y_forced, lambda u_t, y_t, lags: (u_t, 0.0 * y_t),
+                        varying=law)
 
     @classmethod
     def start(cls, ctx):
@@ -172,7 +155,7 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
         return model, base, {"alpha": 0.5, "outlet": mean - depth}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _rate_maps(na):
     """Linear maps between the coefficients of ``A`` (``[1, a_1, ..., a_na]``, powers of
     ``z`` from ``z^na`` down) and those of ``(1 - x)^na A((1 + x) / (1 - x))`` (powers

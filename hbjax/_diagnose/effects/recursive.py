@@ -46,30 +46,41 @@ class AbstractRecursiveEffect(AbstractEffect):
         return cls.from_params(base_model(ctx.lay, theta), jnp.asarray(params), ctx.consts)
 
 
-def arx_scan(a, b, u, noise, y_forced, feedback):
+def arx_scan(a, b, u, noise, y_forced, feedback, varying=None):
     """``y(t) = -sum_i a_i y(t-i) + sum_j b_j w(t-j) + noise(t) + extra(t)`` with
     ``(w(t), extra(t+1)) = feedback(u(t), y(t), lags)``: ``w`` the linear block's input
     after the law, ``extra`` a term entering the next sample's equation directly;
     ``lags`` the output lags before ``y(t)`` (most recent first). With ``y_forced`` the
-    lags hold the measured output (one-step prediction)."""
+    lags hold the measured output (one-step prediction).
+
+    ``varying(y(t)) -> (a', gain, offset)``, if given, makes the block depend on the level:
+    the next sample's equation uses the coefficients ``a'`` (a sequence of ``na``) in place
+    of ``a``, ``gain * b`` in place of ``b``, and adds ``offset``. The first sample has no
+    past: its equation is the nominal one from rest (zero), as eq. (10)."""
     na, nb = a.shape[0], b.shape[0]
     zero = jnp.zeros((), u.dtype)
     forced = y_forced is not None
     ys = y_forced if forced else jnp.zeros_like(u)
 
     def step(carry, x):
-        y_lags, w_lags, extra = carry
+        y_lags, w_lags, extra, (a_t, gain_t) = carry
         u_t, xi_t, ym_t = x
         y_t = xi_t + extra
         for i in range(na):
-            y_t = y_t - a[i] * y_lags[i]
+            y_t = y_t - a_t[i] * y_lags[i]
         for j in range(nb):
-            y_t = y_t + b[j] * w_lags[j]
+            y_t = y_t + gain_t * b[j] * w_lags[j]
         y_src = ym_t if forced else y_t
         w_t, extra_next = feedback(u_t, y_src, y_lags)
+        if varying is not None:
+            a_next, gain_next, offset = varying(y_src)
+            coefs, extra_next = (tuple(a_next), gain_next), extra_next + offset
+        else:
+            coefs = (a_t, gain_t)
         y_lags = (y_src,) + y_lags[:-1]
         w_lags = ((w_t,) + w_lags[:-1]) if nb else w_lags
-        return (y_lags, w_lags, extra_next), y_t
+        return (y_lags, w_lags, extra_next, coefs), y_t
 
-    init = ((zero,) * max(na, 1), (zero,) * nb, zero)
+    nominal = (tuple(a[i] for i in range(na)), jnp.ones((), u.dtype))
+    init = ((zero,) * max(na, 1), (zero,) * nb, zero, nominal)
     return jax.lax.scan(step, init, (u, noise, ys))[1]
