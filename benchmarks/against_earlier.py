@@ -2,7 +2,7 @@
 timed warm on the same machine in one run, so that a refactoring's cost (or a new check's)
 is measured rather than inferred from figures taken on other machines at other loads.
 
-Run: ``.venv/bin/python benchmarks/against_earlier.py [--rounds N] [COMMIT ...]`` (default: the last
+Run: ``.venv/bin/python benchmarks/against_earlier.py [--rounds N] [--calls refine,fit] [COMMIT ...]`` (default: the last
 commit of the flat, pre-subpackage layout, against the working tree). Each commit is
 checked out into a temporary git worktree; a child process per version and round imports
 that tree's ``hbjax`` and times:
@@ -39,10 +39,14 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # The last commit with the flat module layout (hbjax/_refine.py, hbjax/_diagnose.py, ...).
 FLAT_LAYOUT = "f15f477"
 ROUNDS = 3
+# What the child times (`--calls` takes a comma-separated subset; diagnose brings
+# diagnose_common with it).
+CALLS = ["simulate", "refine", "fit", "monte_carlo", "diagnose"]
 
 CHILD = r'''
 import json, sys, time
 tree = sys.argv[1]
+wanted = set(sys.argv[2].split(","))
 sys.path.insert(0, tree)
 import jax
 jax.config.update("jax_enable_x64", True)
@@ -63,44 +67,49 @@ def best(f, repeat=3):
 system, design = hbjax.default_system(), hbjax.default_design()
 times = {}
 
-v = jax.random.uniform(jax.random.PRNGKey(0), (200, 10_000), minval=-4.0, maxval=4.0)
-sim = jax.jit(jax.vmap(lambda x: hbjax.simulate(system, x)))
-times["simulate"] = best(lambda: sim(v), repeat=15)
+if "simulate" in wanted:
+    v = jax.random.uniform(jax.random.PRNGKey(0), (200, 10_000), minval=-4.0, maxval=4.0)
+    sim = jax.jit(jax.vmap(lambda x: hbjax.simulate(system, x)))
+    times["simulate"] = best(lambda: sim(v), repeat=15)
 
-T = 10_000
-inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input,
-                                       design.staircase_input)]
-per_draw = []
-for key in jax.random.split(jax.random.PRNGKey(100), 5):
-    ys = [np.asarray(hbjax.simulate(system, x, 0.2 * jax.random.normal(k, (T,))))
-          for x, k in zip(inputs, jax.random.split(key, 3))]
-    start = hbjax.identify_giri(design, *ys).model
-    recs = list(zip(inputs, ys))
-    per_draw.append(best(lambda: hbjax.refine(start, recs, h_m=4.0).model.arx.a, repeat=15))
-times["refine"] = float(np.median(per_draw))
+if "refine" in wanted:
+    T = 10_000
+    inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input,
+                                           design.staircase_input)]
+    per_draw = []
+    for key in jax.random.split(jax.random.PRNGKey(100), 5):
+        ys = [np.asarray(hbjax.simulate(system, x, 0.2 * jax.random.normal(k, (T,))))
+              for x, k in zip(inputs, jax.random.split(key, 3))]
+        start = hbjax.identify_giri(design, *ys).model
+        recs = list(zip(inputs, ys))
+        per_draw.append(best(lambda: hbjax.refine(start, recs, h_m=4.0).model.arx.a, repeat=15))
+    times["refine"] = float(np.median(per_draw))
 
-x = np.asarray(design.staircase_input(4000))
-y = np.asarray(hbjax.simulate(system, x, 0.1 * jax.random.normal(jax.random.PRNGKey(5), (4000,))))
-times["fit"] = best(lambda: hbjax.fit([(x, y)], na=2, nb=2, m=3,
-                                      key=jax.random.PRNGKey(1)).model.arx.a)
+if "fit" in wanted:
+    x = np.asarray(design.staircase_input(4000))
+    y = np.asarray(hbjax.simulate(system, x, 0.1 * jax.random.normal(jax.random.PRNGKey(5), (4000,))))
+    times["fit"] = best(lambda: hbjax.fit([(x, y)], na=2, nb=2, m=3,
+                                          key=jax.random.PRNGKey(1)).model.arx.a)
 
-times["monte_carlo"] = best(lambda: jnp.asarray(hbjax.monte_carlo(
-    system, design, noise_std=0.2, lengths=(1000, 4000), realisations=200,
-    key=jax.random.PRNGKey(2)).rmse), repeat=5)
+if "monte_carlo" in wanted:
+    times["monte_carlo"] = best(lambda: jnp.asarray(hbjax.monte_carlo(
+        system, design, noise_std=0.2, lengths=(1000, 4000), realisations=200,
+        key=jax.random.PRNGKey(2)).rmse), repeat=5)
 
-xd = np.asarray(jnp.sin(jnp.arange(5000) / 40.0) * 3.0
-                + jax.random.normal(jax.random.PRNGKey(3), (5000,)))
-yd = np.asarray(hbjax.simulate(system, xd, 0.05 * jax.random.normal(jax.random.PRNGKey(4), (5000,))))
-times["diagnose"] = best(lambda: jnp.asarray(len(hbjax.diagnose(system, xd, yd).findings)),
-                         repeat=2)
-# The same candidate effects in both versions: those of the flat layout whose definition
-# did not change since (its coulomb_friction was a static term of the input; it now acts
-# inside the recursion), so the ratio measures the engine rather than the added candidates.
-COMMON = ["parameter_mismatch", "output_saturation", "input_saturation", "extra_delay",
-          "unmodeled_dynamics", "colored_noise", "offset_drift", "parameter_change",
-          "periodic_disturbance", "output_nonlinearity", "branch_degree"]
-times["diagnose_common"] = best(lambda: jnp.asarray(len(hbjax.diagnose(
-    system, xd, yd, effects=COMMON).findings)), repeat=2)
+if "diagnose" in wanted:
+    xd = np.asarray(jnp.sin(jnp.arange(5000) / 40.0) * 3.0
+                    + jax.random.normal(jax.random.PRNGKey(3), (5000,)))
+    yd = np.asarray(hbjax.simulate(system, xd, 0.05 * jax.random.normal(jax.random.PRNGKey(4), (5000,))))
+    times["diagnose"] = best(lambda: jnp.asarray(len(hbjax.diagnose(system, xd, yd).findings)),
+                             repeat=2)
+    # The same candidate effects in both versions: those of the flat layout whose definition
+    # did not change since (its coulomb_friction was a static term of the input; it now acts
+    # inside the recursion), so the ratio measures the engine rather than the added candidates.
+    COMMON = ["parameter_mismatch", "output_saturation", "input_saturation", "extra_delay",
+              "unmodeled_dynamics", "colored_noise", "offset_drift", "parameter_change",
+              "periodic_disturbance", "output_nonlinearity", "branch_degree"]
+    times["diagnose_common"] = best(lambda: jnp.asarray(len(hbjax.diagnose(
+        system, xd, yd, effects=COMMON).findings)), repeat=2)
 print("RESULT " + json.dumps(times))
 '''
 
@@ -112,9 +121,10 @@ def worktree(commit, parent):
     return path
 
 
-def run_child(tree):
+def run_child(tree, calls):
     env = dict(os.environ, HBJAX_NO_COMPILATION_CACHE="1")
-    out = subprocess.run([sys.executable, "-c", CHILD, tree], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", CHILD, tree, ",".join(calls)],
+                         capture_output=True, text=True,
                          env=env, cwd=tree, check=False)
     for line in out.stdout.splitlines():
         if line.startswith("RESULT "):
@@ -131,6 +141,14 @@ def main():
         i = args.index("--rounds")
         rounds = int(args[i + 1])
         del args[i:i + 2]
+    calls = CALLS
+    if "--calls" in args:
+        i = args.index("--calls")
+        calls = args[i + 1].split(",")
+        unknown = sorted(set(calls) - set(CALLS))
+        if unknown:
+            raise SystemExit(f"--calls: unknown {unknown}; expected some of {CALLS}")
+        del args[i:i + 2]
     earlier = args or [FLAT_LAYOUT]
     head = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"],
                           capture_output=True, text=True, check=True).stdout.strip()
@@ -145,7 +163,7 @@ def main():
         try:
             for r in range(rounds):
                 for name, tree in trees.items():
-                    results[name].append(run_child(tree))
+                    results[name].append(run_child(tree, calls))
                     print(f"round {r + 1} {name}: " + ", ".join(
                         f"{k} {v * 1e3:.1f} ms" for k, v in results[name][-1].items()),
                         flush=True)
@@ -155,8 +173,8 @@ def main():
                     subprocess.run(["git", "-C", ROOT, "worktree", "remove", "--force", path],
                                    capture_output=True, check=False)
     load.append(os.getloadavg()[0])
-    calls = list(results[current][0])
-    med = {name: {k: float(np.median([r[k] for r in rs])) for k in calls}
+    timed = list(results[current][0])
+    med = {name: {k: float(np.median([r[k] for r in rs])) for k in timed}
            for name, rs in results.items()}
     base = med[earlier[0]]
     later = [n for n in med if n != earlier[0]]
@@ -170,13 +188,13 @@ def main():
          + " | ".join(f"ratio {n.split()[0]}" for n in later) + " |"),
         "|---|" + "---|" * (len(med) + len(later)),
     ]
-    for k in calls:
+    for k in timed:
         lines.append(f"| {k} | " + " | ".join(f"{med[n][k] * 1e3:.1f}" for n in med) + " | "
                      + " | ".join(f"{med[n][k] / base[k]:.2f}" for n in later) + " |")
     # The spread: each round's own ratio (same round, versions run one after the other).
     lines += ["", "Ratio in each round (later / earlier, round by round): " + "; ".join(
         f"{k} " + ", ".join(f"{b[k] / a[k]:.2f}" for a, b in
-                            zip(results[earlier[0]], results[later[0]])) for k in calls) + "."]
+                            zip(results[earlier[0]], results[later[0]])) for k in timed) + "."]
     lines += [
         "",
         ("Work the working tree does that the earlier version did not, in these calls: "
@@ -200,6 +218,8 @@ def main():
     ]
     body = "\n".join(lines)
     print(body)
+    if calls != CALLS:  # a partial run is printed, not recorded over the full one
+        return
     write_section("Against the flat-layout version (benchmarks/against_earlier.py)", body)
 
 

@@ -46,6 +46,15 @@ def play_step(u_prev, low, high):
     return jnp.minimum(jnp.maximum(u_prev, low), high)
 
 
+def clamp_edges(u_prev, low, high):
+    """``(to_high, to_low)``: whether the play operator's output at a sample is the upper
+    edge ``high`` there (``max(u(t-1), low) > high``) or else the lower edge ``low``
+    (``u(t-1) < low``); neither: ``u(t) = u(t-1)``. Those samples are the source instants
+    of :func:`play_sources` (elementwise: also on whole records given ``u(t-1)``)."""
+    to_high = jnp.maximum(u_prev, low) > high
+    return to_high, ~to_high & (u_prev < low)
+
+
 def play_sources(low: Float[Array, " time"], high: Float[Array, " time"], force=None, *,
                  u0=0.0):
     """The play operator ``u(t) = min(max(u(t-1), low(t)), high(t))`` (``u(-1) = u0``)
@@ -65,8 +74,8 @@ def play_sources(low: Float[Array, " time"], high: Float[Array, " time"], force=
     def step(carry, inputs):
         u_prev, src_prev = carry
         lo, hi, t, f = inputs
-        src = jnp.where(jnp.maximum(u_prev, lo) > hi, T + t,
-                        jnp.where(u_prev < lo, t, src_prev))
+        to_high, to_low = clamp_edges(u_prev, lo, hi)
+        src = jnp.where(to_high, T + t, jnp.where(to_low, t, src_prev))
         u = play_step(u_prev, lo, hi)
         if f is not None:
             u = jnp.select([f == 0, f == 1, f == 2], [lo, hi, u_prev], u)

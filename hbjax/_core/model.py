@@ -79,6 +79,12 @@ class Hammerstein(AbstractModel):
             raise TypeError(f"`arx` must be an hbjax.ARX, got {type(self.arx).__name__}.")
 
     def simulate_trajectory(self, v, noise, u0, y0=None):
+        return self.free_run(v, noise, u0, y0)[1]
+
+    def free_run(self, v, noise, u0, y0=None):
+        """``(u, y)``: the play operator's output and the output of eq. (10) driven by
+        ``noise``, from one scan (the free-run fit of a refined model needs both; where only
+        ``y`` is used the compiler drops ``u``)."""
         # `y0` (output lags, most recent first) starts the recursion from a past with
         # u(-j) = u0 (hbjax.simulate); None keeps the paper's zero initial conditions.
         # One scalar carry per lag (a tuple, not a shifted array): orders are static, so
@@ -99,7 +105,7 @@ class Hammerstein(AbstractModel):
             u_t = self.backlash.step(u_play, v_t)
             y_lags = ((y_t,) + y_lags[:-1]) if na else y_lags
             u_lags = (u_t,) + u_lags[:-1]
-            return (u_t, y_lags, u_lags), y_t
+            return (u_t, y_lags, u_lags), (u_t, y_t)
 
         u_init = jnp.asarray(u0, v.dtype)
         if y0 is None:
@@ -109,8 +115,8 @@ class Hammerstein(AbstractModel):
         # Measured on CPU (benchmarks/simulate.py, 1000 x 10 000 time-major): unrolling two
         # samples saves 15-25% for n >= 2 but costs 70% for a first-order block.
         unroll = 2 if max(na, nb) >= 2 else 1
-        _, y = jax.lax.scan(step, init, (v, noise), unroll=unroll)
-        return y
+        _, (u, y) = jax.lax.scan(step, init, (v, noise), unroll=unroll)
+        return u, y
 
     def predict_trajectory(self, v, y, u0):
         u = play_trajectory(self.backlash, v, u0)

@@ -35,9 +35,8 @@ from .._core.progress import check_progress, progress_bar
 from .._identify.recordings import as_input_output
 from .._misc import (
     as_float_array,
-    check_finite,
     check_key,
-    check_magnitude,
+    check_values,
     same_length,
 )
 from .._misc import jsonable as _jsonable
@@ -67,8 +66,8 @@ def _check_inputs(model, v, y, holdout, effects, key):
         # Its free run diverges: every simulation-based statistic would be inf/NaN.
         raise ValueError("the nominal `model` has an unstable A (assumption A3): its free run "
                          "diverges; start from a stable nominal model.")
-    v = check_magnitude(check_finite(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v"), "v")
-    y = check_magnitude(check_finite(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y"), "y")
+    v = check_values(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v")
+    y = check_values(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y")
     same_length(v=v, y=y)
     if isinstance(holdout, bool) or not isinstance(holdout, (int, float)) or not 0 < holdout < 1:
         raise ValueError(f"`holdout` must be a fraction in (0, 1), got {holdout!r}.")

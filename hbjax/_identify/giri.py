@@ -17,7 +17,7 @@ from .._core.model import Hammerstein
 from .._core.params import gauge_factor
 from .._core.precision import require_x64
 from .._core.signals import GiriDesign
-from .._misc import as_float_array, check_finite, check_magnitude, is_traced, lagged
+from .._misc import as_float_array, check_values, is_traced, lagged
 from .._results import RESULTS, message, raise_if_failed
 from .giri_band import project_onto_band
 from .linear import arx_regressors, equilibrate, equilibrated_solve
@@ -266,7 +266,7 @@ def _record(y, name, minimum, what):
             f"`{name}` has {y.shape[0]} samples; it must cover at least {what} "
             f"({minimum} samples)."
         )
-    return check_magnitude(check_finite(y, name), name)
+    return check_values(y, name)
 
 
 def _check_input_record(design, v, name, expected):

@@ -10,12 +10,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._core.arx import all_pole
-from .._core.backlash import polyval_ascending
+from .._core.backlash import clamp_edges, polyval_ascending
 from .._core.initial import _estimate
 from .._core.model import Hammerstein
 from .._core.params import split_theta
-from .._misc import lag_sum
 from .criteria import SIMULATION, branch_sources, unpack, where_valid
 from .parametrisation import CORE_BAND
 from .stable import remove_start
@@ -29,10 +27,6 @@ SIM_FIT_FLOOR = 0.0
 # Eigenvalues of the column-normalised Gauss-Newton matrix at or below this (relative to the
 # largest) span directions the data do not identify (exact dependence gives ~1e-16).
 RANK_RTOL = 1e-12
-
-
-def _theta(model: Hammerstein):
-    return jnp.concatenate([model.arx.a, model.arx.b, model.backlash.c1, model.backlash.c2])
 
 
 def core_consistent(theta_scaled, band, recordings, scale, na: int, nb: int):
@@ -123,20 +117,20 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
     instants of the output (NaN for a branch that never decides it); ``sources`` the play
     operator's output of each record (for :mod:`hbjax._identify.adequacy`). An unstable
     model's free run may overflow: its fit is then ``-inf``."""
-    na, nb = model.arx.na, model.arx.nb
-    theta = _theta(model)
     fits, num, den, sources = [], 0.0, 0.0, []
     lo = jnp.full(2, jnp.inf)
     hi = jnp.full(2, -jnp.inf)
     for v, y, mask in map(unpack, recordings):
-        # One play-operator pass gives the free run's input and the active ranges below.
-        u, idx, on_p1, on_p2 = branch_sources(theta, v, na, nb, CORE_BAND)
+        # One scan gives the free run and the play operator's output (the input-effect
+        # test's regressor): a scan's cost on CPU is its steps, and a separate play pass
+        # with its source indices doubled this function's time.
+        u, y_sim = model.free_run(v, jnp.zeros_like(v), 0.0)
         sources.append(u)
-        r = y - all_pole(model.arx.a, lag_sum(model.arx.b, u))
+        r = y - y_sim
         if initial_state == "estimate" and mask is None:
             r = jnp.sqrt(_estimate(model, v, y).cost)  # the free run's error from it
         elif initial_state == "estimate":
-            r = remove_start(where_valid(mask, r, 0.0), model.arx.a, nb, SIMULATION, mask)
+            r = remove_start(where_valid(mask, r, 0.0), model.arx.a, model.arx.nb, SIMULATION, mask)
         e2 = jnp.sum(where_valid(mask, r**2, 0.0))  # an overflowing padded tail is no error
         e2 = jnp.where(jnp.isfinite(e2), e2, jnp.inf)
         if mask is None:
@@ -146,11 +140,17 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
             d2 = jnp.sum(where_valid(mask, (y - mean) ** 2, 0.0))
         fits.append(100.0 * (1.0 - jnp.sqrt(e2) / jnp.sqrt(jnp.maximum(d2, 1e-300))))
         num, den = num + e2, den + d2
-        vs = v[idx]
-        for k, on in enumerate((on_p1, on_p2)):
+        # A branch decides the output at the inputs of the instants the play operator is
+        # clamped to it (every other sample repeats an earlier such value).
+        p1, p2 = model.backlash.p1(v), model.backlash.p2(v)
+        u_prev = jnp.concatenate([jnp.zeros(1, u.dtype), u[:-1]])
+        to_high, to_low = clamp_edges(u_prev, jnp.minimum(p1, p2), jnp.maximum(p1, p2))
+        low_is_p1 = p1 <= p2
+        on_p1 = (to_low & low_is_p1) | (to_high & ~low_is_p1)
+        for k, on in enumerate((on_p1, (to_low | to_high) & ~on_p1)):
             on = where_valid(mask, on, False)
-            lo = lo.at[k].min(jnp.min(jnp.where(on, vs, jnp.inf)))
-            hi = hi.at[k].max(jnp.max(jnp.where(on, vs, -jnp.inf)))
+            lo = lo.at[k].min(jnp.min(jnp.where(on, v, jnp.inf)))
+            hi = hi.at[k].max(jnp.max(jnp.where(on, v, -jnp.inf)))
     pooled = 100.0 * (1.0 - jnp.sqrt(num) / jnp.sqrt(jnp.maximum(den, 1e-300)))
     never = ~jnp.isfinite(lo)
     active = jnp.stack([jnp.where(never, jnp.nan, lo), jnp.where(never, jnp.nan, hi)], axis=1)

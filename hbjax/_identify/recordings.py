@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._misc import (
-    as_float_array, check_finite, check_magnitude, is_traced, one_device, positive_float,
+    as_float_array, check_values, is_traced, one_device, positive_float,
 )
 from .criteria import CRITERIA
 from .._core.model import Hammerstein
@@ -93,7 +93,7 @@ def as_recordings(recordings, name: str = "recordings", *, model=None, host: boo
             )
         if v.shape[0] < 2:
             raise ValueError(f"`{tag}` must hold at least 2 samples, got {v.shape[0]}.")
-        out.append(tuple(check_magnitude(check_finite(x, f"{tag} {side}"), f"{tag} {side}")
+        out.append(tuple(check_values(x, f"{tag} {side}")
                          for x, side in ((v, "v"), (y, "y"))))
     named = {f"{name}[{k}] {side}": arr for k, pair in enumerate(out)
              for side, arr in zip("vy", pair)}
