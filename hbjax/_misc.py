@@ -96,7 +96,7 @@ def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE):
 
 def check_values(x, name: str, limit: float = MAX_MAGNITUDE):
     """:func:`check_finite` then :func:`check_magnitude`; concrete data that pass both cost
-    one pass over the samples (the peak, which NaN and inf fail), not three."""
+    two reductions (max and min, which NaN and inf fail), not the four passes of the two."""
     if not is_traced(x) and np.size(x):
         arr = np.asarray(x)
         if max(float(np.max(arr)), -float(np.min(arr))) <= limit:  # (False for NaN)

@@ -54,7 +54,8 @@ def padded(x, length: int, *, hold: bool = False) -> np.ndarray:
     repeated (``hold=True``: a held input and output keep the padded part of every
     recursion finite, where the padding is masked out or cut off rather than zero)."""
     x = np.asarray(x)
-    # (np.pad's generality costs about 20 us a call, several times a refinement's arguments)
+    # (np.pad took 17.6 us for a 10 000-sample record, this 3.3 us; a refinement pads each
+    # of its records' two signals)
     out = np.empty(length, x.dtype)
     out[:x.shape[0]] = x
     out[x.shape[0]:] = x[-1] if hold and x.shape[0] else 0
