@@ -24,6 +24,23 @@ ANCHOR_ALPHA = 1e-3
 _PREDICTION_METRIC = ("colored_noise",)
 
 
+def rank(findings):
+    """The order of the reported findings (``Diagnosis.findings``; the first is ``best``):
+    mechanisms before noise-model findings, each group by BIC on the fitting segment; then
+    a finding whose recording shows its effect's own model-free signature
+    (``evidence["record_signature"]``, e.g. an output held exactly at a level for runs of
+    samples) moves ahead of the rivals its class names (``signature_rivals``): effects that
+    can mimic its residual, and so may win in BIC, but cannot produce that signature."""
+    out = sorted(findings, key=lambda f: (not f.mechanism, f.evidence["bic"]))
+    for f in [f for f in out if f.evidence.get("record_signature")]:
+        rivals = getattr(type(f.model), "signature_rivals", ())
+        i = next(k for k, g in enumerate(out) if g is f)
+        first = next((k for k, g in enumerate(out[:i]) if g.effect in rivals), None)
+        if first is not None:
+            out.insert(first, out.pop(i))
+    return out
+
+
 def statistics(y, fast_all, eps_all, ysim_all, n_fit, burn, lay, candidates, theta_fit):
     """BIC on the fitting segment (the criterion that was minimised) and held-out fits
     (exact simulator and predictor)."""

@@ -46,7 +46,7 @@ from . import effects as fx
 from . import holdout as ho
 from . import verdict as vd
 from .clip_nominal import ON_NOMINAL, clip_on_nominal
-from .decide import BIC_MARGIN, DM_Z, decide, statistics
+from .decide import BIC_MARGIN, DM_Z, decide, rank, statistics
 from .effects import base_theta, resolve
 from .fitting import choose_starts, evaluate_candidates, fit_candidates
 from .kernel import MAX_DELAY
@@ -221,8 +221,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                                  channels, n_fit, burn, criterion, table)
         if finding is not None:
             findings = sorted(findings + [finding], key=lambda f: f.evidence["bic"])
-    # mechanisms rank before noise-model findings, each group by BIC
-    findings = sorted(findings, key=lambda f: (not f.mechanism, f.evidence["bic"]))
+    findings = rank(findings)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
     bar.update(1)

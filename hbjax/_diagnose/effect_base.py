@@ -136,7 +136,11 @@ class AbstractEffect(AbstractModel):
       ``docs/diagnosis.md``); ``False`` for a class that is itself a change of the base;
     - optionally `anchored_form` (``ClassVar[type]``): another effect class (same `name`,
       not in :data:`hbjax.EFFECTS`) fitted as the anchored variant, where the class's own
-      parametrisation needs the base to move to express the mechanism.
+      parametrisation needs the base to move to express the mechanism;
+    - optionally `signature_rivals` (``ClassVar[tuple[str, ...]]``): effects that can mimic
+      this one's residual but cannot produce a signature the recording itself shows; where
+      :meth:`describe` finds that signature (``evidence["record_signature"]``), the finding
+      ranks above those rivals (:func:`hbjax._diagnose.decide.rank`).
 
     A mechanism is reported where it improves the held-out free run
     (:func:`hbjax._diagnose.decide.decide`). `noise_rival` names a noise model that gains
@@ -166,6 +170,7 @@ class AbstractEffect(AbstractModel):
     noise_rival: ClassVar[str | None] = None
     anchorable: ClassVar[bool] = True
     anchored_form: ClassVar[type | None] = None
+    signature_rivals: ClassVar[tuple[str, ...]] = ()
 
     def __check_init__(self):
         if not isinstance(self.base, Hammerstein):

@@ -72,6 +72,12 @@ class OutputSaturation(AbstractKernelEffect):
     name: ClassVar[str] = "output_saturation"
     slots: ClassVar[dict] = {"lower": "out_lo", "upper": "out_hi"}
     output_static: ClassVar[bool] = True
+    # An actuator limit and a curved sensor flatten the output too, but leave the equation
+    # noise on it: only a clip of the measurement holds it *exactly* at a level for runs
+    # of samples (residual_tests.plateaus). On the independent generator's records the
+    # signature appeared in 30 of 32 clipped outputs and in none of the 480 records of
+    # every other effect and clean ones (benchmarks/RESULTS.md).
+    signature_rivals: ClassVar[tuple[str, ...]] = ("input_saturation", "output_nonlinearity")
 
     @classmethod
     def candidate(cls, ctx):
@@ -98,6 +104,7 @@ class OutputSaturation(AbstractKernelEffect):
             where["model_windows"] = where["windows"]
             where["windows"] = sorted(stuck)
         evidence.setdefault("samples_at_upper_level", 0)
+        evidence["record_signature"] = bool(stuck)
         return {
             "physics": (f"The measured output is clipped {sides}: a sensor range, ADC or "
                         "overflow limit the nominal model does not have "

@@ -1,0 +1,62 @@
+"""The order of a diagnosis's findings: mechanisms before noise models, each by BIC, and a
+finding whose recording shows its effect's own signature ahead of the rivals that can mimic
+its residual but not that signature (an output held exactly at a level: only a clip of the
+measurement makes it)."""
+
+import collections
+
+import jax.numpy as jnp
+import numpy as np
+from generators.concealed_effects import ALL_EFFECTS, concealed_case, random_base
+
+import hbjax
+from hbjax._diagnose.decide import rank
+from hbjax._diagnose.residual_tests import plateaus
+
+
+def _finding(effect, model, bic, kind="mechanism", signature=None):
+    evidence = {"bic": bic, "kind": kind}
+    if signature is not None:
+        evidence["record_signature"] = signature
+    return hbjax.Finding(effect=effect, physics="", where={}, parameters={}, model=model,
+                         metric="simulation", fit_before=0.0, fit_after=0.0, evidence=evidence)
+
+
+def test_recorded_signature_outranks_its_rivals_and_nothing_else():
+    base = hbjax.default_system()
+    clip = hbjax.EFFECTS["output_saturation"](base, None, jnp.asarray(5.0))
+    actuator = hbjax.EFFECTS["input_saturation"](base, None, jnp.asarray(2.0))
+    change = hbjax.EFFECTS["offset_drift"](base, jnp.asarray(0.1), jnp.asarray(0.0))
+    noise = hbjax.EFFECTS["colored_noise"]
+
+    def order(signature):
+        found = [_finding("colored_noise", noise, 10.0, kind="noise model"),
+                 _finding("output_saturation", clip, 120.0, signature=signature),
+                 _finding("input_saturation", actuator, 100.0),
+                 _finding("offset_drift", change, 90.0)]
+        return [f.effect for f in rank(found)]
+
+    # by BIC, noise model last
+    assert order(False) == ["offset_drift", "input_saturation", "output_saturation",
+                            "colored_noise"]
+    assert order(None) == order(False)
+    # the clip's signature puts it above its rival, not above an unrelated mechanism
+    assert order(True) == ["offset_drift", "output_saturation", "input_saturation",
+                           "colored_noise"]
+
+
+def test_clip_signature_appears_only_in_clipped_outputs():
+    """Over random systems, inputs, lengths and noise levels of the independent generator
+    (tests/generators): the plateau signature the ranking relies on is found on most
+    clipped outputs and on no record of any other effect or a clean one."""
+    found, total = collections.Counter(), collections.Counter()
+    for seed in (11, 12):
+        rng = np.random.default_rng(seed)
+        for effect in list(ALL_EFFECTS) + [None]:
+            case = concealed_case(rng, effect, base=random_base(rng), n=1500)
+            y = np.asarray(case["y"])
+            total[effect] += 1
+            found[effect] += plateaus(y, 1) is not None or plateaus(y, -1) is not None
+    others = {e: found[e] for e in total if e != "output_saturation"}
+    assert sum(others.values()) == 0, others
+    assert found["output_saturation"] >= 1, found
