@@ -215,12 +215,12 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
         if row is not None:
             table[ON_NOMINAL] = row
         if finding is not None:
-            findings = sorted(findings + [finding], key=lambda f: f.evidence["bic"])
+            findings = findings + [finding]
     if channels:
         finding = _missing_input(model, y, ysim_all, stats, [c.label for c in candidates],
                                  channels, n_fit, burn, criterion, table)
         if finding is not None:
-            findings = sorted(findings + [finding], key=lambda f: f.evidence["bic"])
+            findings = findings + [finding]
     findings = rank(findings)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
