@@ -99,6 +99,18 @@ def test_neutral_extensions_are_the_nominal_model(record):
                                    atol=1e-12)
 
 
+def test_clipped_output_predictor_clips_the_plain_arx_prediction(record):
+    # the sensor's limit acts on the predicted measurement: the one-step predictor of
+    # y = clip(y_lin) is clip(B u + (1 - A) y) from the measured past, the nominal model's
+    # predictor clipped (a reference built from the public nominal predictor alone)
+    system, v, xi = record
+    clipped = fx.OutputSaturation(system, jnp.asarray(-1.0), jnp.asarray(2.0))
+    y = np.asarray(hbjax.simulate(clipped, v, xi))
+    assert np.mean(y == 2.0) > 0.05 and np.mean(y == -1.0) > 0.05
+    expected = np.clip(np.asarray(hbjax.predict(system, v, y)), -1.0, 2.0)
+    np.testing.assert_allclose(hbjax.predict(clipped, v, y), expected, atol=1e-10)
+
+
 @pytest.mark.parametrize("effect", [e for e, cls in hbjax.EFFECTS.items()
                                     if e != "parameter_mismatch" and hasattr(cls, "parts")])
 def test_fast_criterion_equals_exact_prediction_error(effect):

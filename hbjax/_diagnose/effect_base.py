@@ -161,7 +161,8 @@ class AbstractEffect(AbstractModel):
     order; other shapes give :meth:`from_params` and :meth:`params` too.
 
     The one-step predictor is that of every extension, ``y_hat = y - A (y - y_sim)``
-    (for the nominal model exactly the ARX predictor of eq. (10)).
+    (for the nominal model exactly the ARX predictor of eq. (10); the output clip acts on
+    the prediction instead: ``clip(y - A (y - y_pre))``, ``y_pre`` the unclipped free run).
     """
 
     base: eqx.AbstractVar[Hammerstein]

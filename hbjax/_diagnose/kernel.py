@@ -17,9 +17,15 @@ Extended model (all terms together), with ``s(t) = 1[t >= tau]``:
   with the equation error coloured by ``D(q^-1) xi_c = xi``;
 - output path: ``y = clip(y_lin + drift + sinusoid + g(y_lin) + F_c tanh(du/w), out_lo, out_hi)``.
 
-The prediction error used by every fit is ``eps = D (A_t (y - y_sim))``: for the nominal
-model it is exactly the ARX equation error ``A y - B u`` (zero initial conditions), the
-maximum-likelihood criterion under white Gaussian equation error.
+The prediction error used by every fit is ``eps = D (A_t (y - y_pre))`` with ``y_pre`` the
+simulated output before the output clip: for the nominal model it is exactly the ARX
+equation error ``A y - B u`` (zero initial conditions), the maximum-likelihood criterion
+under white Gaussian equation error. The output clip then acts on the *prediction*, as a
+sensor's limit acts on the measurement: the predictor is ``clip(y - eps_pre, out_lo,
+out_hi)`` (:func:`clipped_error`). Clipping inside the difference instead
+(``A (y - clip(y_pre))``) would meet every exit from the clip with the free run's
+accumulated output error and hide a clip from the prediction criterion on a slow plant
+(benchmarks/RESULTS.md, "the clipped predictor").
 """
 
 from __future__ import annotations
@@ -129,11 +135,12 @@ def _branch(c, dc, cx, s, v, vs, m):
     return polyval_ascending(c + s * dc, v) + cx * (v / vs) ** m
 
 
-def simulate_full(lay: Layout, theta, ints, consts, v, noise, u0):
+def simulate_full(lay: Layout, theta, ints, consts, v, noise, u0, clip: bool = True):
     """Free-run output of the extended model and the (clipped, delayed) internal signal.
 
     ``ints = [d, tau]`` (extra delay, change time), ``consts = [v_scale, y_center,
-    y_scale, friction_width]``. Returns ``(y, u_used)``, each shape ``(T,)``.
+    y_scale, friction_width]``. Returns ``(y, u_used)``, each shape ``(T,)``;
+    ``clip=False`` leaves out the output clip (the predictor's ``y_pre``).
     """
     na, nb, m = lay.na, lay.nb, lay.m
     g = lambda name: lay.get(theta, name)  # noqa: E731
@@ -175,11 +182,11 @@ def simulate_full(lay: Layout, theta, ints, consts, v, noise, u0):
     init = (jnp.asarray(u0, v.dtype), (zero,) * (na + 1), jnp.zeros(buf_len, v.dtype),
             (zero, zero))
     _, (y_lin, u_used) = jax.lax.scan(step, init, (v, noise, s_all))
-    return output_path(lay, theta, consts, y_lin, u_used), u_used
+    return output_path(lay, theta, consts, y_lin, u_used, clip), u_used
 
 
-def output_path(lay: Layout, theta, consts, y_lin, u_used):
-    """Additive and static output-side terms, then the output clip."""
+def output_path(lay: Layout, theta, consts, y_lin, u_used, clip: bool = True):
+    """Additive and static output-side terms, then the output clip (unless ``clip=False``)."""
     g = lambda name: lay.get(theta, name)[0]  # noqa: E731
     t = jnp.arange(y_lin.shape[0], dtype=y_lin.dtype)
     y = y_lin + g("drift_offset") + g("drift_rate") * t
@@ -189,22 +196,33 @@ def output_path(lay: Layout, theta, consts, y_lin, u_used):
     y = y + consts[2] * (g("nl2") * z**2 + g("nl3") * z**3)
     du = u_used - jnp.concatenate([u_used[:1], u_used[:-1]])
     y = y + g("friction") * jnp.tanh(du / consts[3])
-    return jnp.clip(y, g("out_lo"), g("out_hi"))
+    return jnp.clip(y, g("out_lo"), g("out_hi")) if clip else y
 
 
-def whiten(lay: Layout, theta, ints, y, y_sim):
-    """Prediction error ``eps = D(q^-1) A_t(q^-1) (y - y_sim)`` (see module docstring)."""
+def clipped_error(lay: Layout, theta, y, eps_pre):
+    """One-step error of the predictor ``clip(y - eps_pre, out_lo, out_hi)``: the output
+    clip applied to the prediction of the unclipped model (see module docstring); equal
+    to ``eps_pre`` where the clip levels are infinite."""
+    return y - jnp.clip(y - eps_pre, lay.get(theta, "out_lo")[0], lay.get(theta, "out_hi")[0])
+
+
+def whiten(lay: Layout, theta, ints, y, y_pre):
+    """Prediction error of the extended model from its unclipped free run ``y_pre``:
+    ``D(q^-1) A_t(q^-1) (y - y_pre)``, then the output clip on the prediction
+    (:func:`clipped_error`; see module docstring)."""
     s = (jnp.arange(y.shape[0]) >= ints[1]).astype(y.dtype)
     _, a_t, _ = linear_block(lay, theta, s)
-    e = y - y_sim
+    e = y - y_pre
     w = e + lag_sum(a_t, e)
-    return w + lag_sum(lay.get(theta, "noise_d"), w)
+    return clipped_error(lay, theta, y, w + lag_sum(lay.get(theta, "noise_d"), w))
 
 
 def prediction_error(lay: Layout, theta, ints, consts, v, y):
     """``(eps, y_sim, u_used)`` of the extended model on a record (noise-free simulation)."""
-    y_sim, u_used = simulate_full(lay, theta, ints, consts, v, jnp.zeros_like(v), 0.0)
-    return whiten(lay, theta, ints, y, y_sim), y_sim, u_used
+    y_pre, u_used = simulate_full(lay, theta, ints, consts, v, jnp.zeros_like(v), 0.0,
+                                  clip=False)
+    y_sim = jnp.clip(y_pre, lay.get(theta, "out_lo")[0], lay.get(theta, "out_hi")[0])
+    return whiten(lay, theta, ints, y, y_pre), y_sim, u_used
 
 
 # --- Fast criterion for fitting --------------------------------------------------------
@@ -216,7 +234,8 @@ def prediction_error(lay: Layout, theta, ints, consts, v, y):
 #   side; u is then a gather of branch values, differentiable in the branch coefficients;
 # - with y_lin = (B/A) u the prediction error D A (y - y_sim) equals
 #   D [A (y - d - g) - B u], where d are the additive output terms and g the deviation of
-#   the static output map (clip, curvature) from the identity; only g needs y_lin, which
+#   the static output map (curvature; the clip too for the output error, while the
+#   predictor clips its prediction, see the module docstring); only g needs y_lin, which
 #   is computed by an FFT division (exact up to the tail of the impulse response past
 #   the padded length).
 
@@ -278,7 +297,7 @@ def play_gather(lay: Layout, theta, consts, v, u0=0.0):
 def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
                           output_static: bool = True, criterion: str = "prediction"):
     """Prediction error of the extended model for fitting (see the comment above);
-    equals ``whiten(y, simulate_full(...))`` for any single extension, up to the start-up
+    equals ``prediction_error(...)[0]`` for any single extension, up to the start-up
     transient. ``output_static=False`` drops the output clip and curvature (and the FFT
     they need) for candidates that keep them neutral. ``criterion="simulation"`` returns
     the output error ``y - y_sim = w / A`` instead (no noise model)."""
@@ -298,12 +317,17 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
         y_lin = iir_fft(a, lag_sum(b_t, u))
         z = (y_lin - consts[1]) / consts[2]
         shaped = y_lin + consts[2] * (g("nl2")[0] * z**2 + g("nl3")[0] * z**3) + add
-        r = r - (jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) - y_lin - add)
+        # the output error sees the clipped output; the predictor clips its prediction
+        # of the unclipped model instead (clipped_error below, module docstring)
+        out = jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) if criterion == "simulation" \
+            else shaped
+        r = r - (out - y_lin - add)
     # the ARX equation error of eq. (10) on the extended model's signals
     w = equation_error(a_t, b_t, r, u)
     if criterion == "simulation":
         return iir_fft(a, w)
-    return w + lag_sum(g("noise_d"), w)
+    eps = w + lag_sum(g("noise_d"), w)
+    return clipped_error(lay, theta, y, eps) if output_static else eps
 
 
 def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="prediction"):

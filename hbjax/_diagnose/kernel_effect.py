@@ -78,8 +78,8 @@ class AbstractKernelEffect(AbstractEffect):
 
     def predict_trajectory(self, v, y, u0):
         lay, theta, ints, consts = self.parts()
-        y_sim = simulate_full(lay, theta, ints, consts, v, jnp.zeros_like(v), u0)[0]
-        return y - whiten(lay, theta, ints, y, y_sim)
+        y_pre = simulate_full(lay, theta, ints, consts, v, jnp.zeros_like(v), u0, clip=False)[0]
+        return y - whiten(lay, theta, ints, y, y_pre)
 
     @classmethod
     @abc.abstractmethod
