@@ -66,9 +66,11 @@ def test_anchored_unmodeled_dynamics_is_a_lag_in_series():
                                np.asarray(hbjax.simulate(model, flat))[-1], rtol=1e-9)
 
 
-def _level_loop(a, b, u, alpha, outlet, depth):
+def _level_loop(a, b, u, alpha, outlet, depth, datum=None):
     """The level law from the poles: each pole ``p`` moved to ``(1 + s x) / (1 - s x)``
-    with ``x = (p - 1) / (p + 1)``, static gain ``1/s`` times the nominal one."""
+    with ``x = (p - 1) / (p + 1)``, static gain ``1/s`` times the nominal one, around
+    ``datum`` (the outlet unless given)."""
+    datum = outlet if datum is None else datum
     a, b = np.asarray(a, float), np.asarray(b, float)
     x = (np.roots(np.r_[1.0, a]) - 1) / (np.roots(np.r_[1.0, a]) + 1)
     A1 = 1 + a.sum()
@@ -78,26 +80,30 @@ def _level_loop(a, b, u, alpha, outlet, depth):
         s = (depth / max(abs(level - outlet), 1e-3 * depth)) ** alpha
         a_s = np.real(np.poly((1 + s * x) / (1 - s * x)))[1:]
         g = (1 + a_s.sum()) / (s * A1)
-        acc = ((1 + a_s.sum()) * outlet - g * A1 * outlet) if t >= 1 else 0.0
+        acc = ((1 + a_s.sum()) * datum - g * A1 * datum) if t >= 1 else 0.0
         acc -= sum(a_s[i] * y[t - 1 - i] for i in range(len(a)) if t - 1 - i >= 0)
         acc += g * sum(b[j] * u[t - 1 - j] for j in range(len(b)) if t - 1 - j >= 0)
         y[t] = acc
     return y
 
 
+@pytest.mark.parametrize("datum", [None, 0.0, 1.3])
 @pytest.mark.parametrize("a, b", [([-0.8], [0.2]), ([-1.5, 0.6], [0.05, 0.04]),
                                   ([-1.2, 0.5, -0.08], [0.1, 0.0, 0.05])])
-def test_level_dependent_matches_the_pole_law(a, b):
+def test_level_dependent_matches_the_pole_law(a, b, datum):
     model = hbjax.Hammerstein(hbjax.Backlash(c1=[-0.3, 1.0], c2=[0.3, 1.0]),
                               hbjax.ARX(a=a, b=b))
     v = np.repeat(np.random.default_rng(1).uniform(1, 4, 30), 10)
     mean, std, depth = 2.0, 1.0, 2.5
     fx = hbjax.EFFECTS["level_dependent_dynamics"](
         model, jnp.asarray(0.5), jnp.asarray(np.log(depth / std)), jnp.asarray(mean),
-        jnp.asarray(std))
+        jnp.asarray(std), None if datum is None else jnp.asarray(datum))
     u = np.asarray(hbjax.play(model.backlash, v))
-    ref = _level_loop(a, b, u, 0.5, mean - depth, depth)
+    ref = _level_loop(a, b, u, 0.5, mean - depth, depth, datum)
     np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, v)), ref, atol=1e-9)
+    # the fitted parameter vector gives back the same law
+    again = type(fx).from_params(model, fx.params(), jnp.asarray([1.0, mean, std, 1.0]))
+    np.testing.assert_allclose(np.asarray(hbjax.simulate(again, v)), ref, atol=1e-9)
 
 
 def test_level_dependent_first_order_is_torricelli_in_equilibrium():

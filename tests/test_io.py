@@ -362,6 +362,23 @@ def test_diagnosis_extensions_round_trip(tmp_path, effect):
     np.testing.assert_array_equal(hbjax.simulate(back, rec.v), hbjax.simulate(rec.true_model, rec.v))
 
 
+def test_file_from_before_a_field_with_a_default_was_added_still_loads(system):
+    # level_dependent_dynamics gained its `datum` (default: the outlet) after files were
+    # written without it; such a file loads with the default and simulates as before
+    fx = hbjax.EFFECTS["level_dependent_dynamics"](system, jnp.asarray(0.5), jnp.asarray(0.3),
+                                                  jnp.asarray(1.0), jnp.asarray(2.0))
+    doc = json.loads(model_to_json(fx))
+    assert doc["model"]["fields"].pop("datum") is None
+    back = model_from_json(json.dumps(doc))
+    assert back.datum is None
+    v = jnp.linspace(-4, 4, 60)
+    np.testing.assert_array_equal(hbjax.simulate(back, v), hbjax.simulate(fx, v))
+    # a field without a default is still required
+    doc["model"]["fields"].pop("alpha")
+    with pytest.raises(ModelFileError, match=r"missing fields \['alpha'\]"):
+        model_from_json(json.dumps(doc))
+
+
 def test_written_files_get_ordinary_permissions(tmp_path, system):
     umask = os.umask(0o022)
     try:

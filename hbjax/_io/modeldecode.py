@@ -111,9 +111,13 @@ def _decode_module(obj, extra, where):
     cls = _resolve_class(obj["class"], extra, where)
     if getattr(cls, "__abstractmethods__", None):
         raise ModelFileError(f"`{where}`: class {obj['class']!r} is abstract.")
-    expected = [f.name for f in dataclasses.fields(cls)]
+    fields = dataclasses.fields(cls)
+    expected = [f.name for f in fields]
     given = obj["fields"]
-    missing = [n for n in expected if n not in given]
+    # a field added to a class later, with a default, is absent from the files written
+    # before it: those files keep loading, with the default
+    defaults = {f.name: f.default for f in fields if f.default is not dataclasses.MISSING}
+    missing = [n for n in expected if n not in given and n not in defaults]
     unknown = [n for n in given if n not in expected]
     if missing or unknown:
         raise ModelFileError(
@@ -121,7 +125,8 @@ def _decode_module(obj, extra, where):
             f"unknown fields {unknown}."
         )
     _check_degree(cls, given, where)
-    values = {n: _decode(given[n], extra, f"{where}.{n}") for n in expected}
+    values = {n: _decode(given[n], extra, f"{where}.{n}") if n in given else defaults[n]
+              for n in expected}
     module = object.__new__(cls)
     for name, value in values.items():
         object.__setattr__(module, name, value)

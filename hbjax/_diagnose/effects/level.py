@@ -32,8 +32,19 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     ``s A(1) (y - outlet) = B(1) u - A(1) outlet``: the outflow goes as
     ``(y - outlet)^(1 - alpha)``, Torricelli's law for ``alpha = 1/2``; locally every time
     constant and the gain grow as ``(y - outlet)^alpha``. ``s = 1`` at the mean level, so
-    ``alpha = 0`` is the nominal model. Fitted: ``alpha`` and ``log_depth``
-    (``depth = exp(log_depth) y_std``). Scaling only the restoring term ``y(t-1) - outlet``
+    ``alpha = 0`` is the nominal model. Fitted: ``alpha``, ``log_depth``
+    (``depth = exp(log_depth) y_std``) and the ``datum`` (below; ``None``: the outlet).
+
+    The datum is the level the scaled block's input response is measured from: the law
+    above with ``datum`` in place of ``outlet`` outside ``s``,
+    ``A_s (y - datum) = g (B u - A(1) datum)``. At the outlet (the default) the tank
+    drains to its orifice without inflow; at the measured output's zero, the nominal
+    block's own origin, the law scales the gain and the time constants of eq. (10) as
+    they stand (``A_s y = g B u``), as a gain-scheduled model does. Which one a plant
+    follows depends on where its sensor's zero sits, so the fit chooses; with a single
+    datum, the law's offset term was fitted by the outlet and the other records of the
+    generator in tests/ were named as a curved sensor or a branch degree instead
+    (benchmarks/RESULTS.md). Scaling only the restoring term ``y(t-1) - outlet``
     (an earlier form of this law) is the same for a first-order block but leaves the other
     poles of a higher-order one in place, and was named on a third of such records."""
 
@@ -42,9 +53,10 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     log_depth: Float[Array, ""]
     y_mean: Float[Array, ""]
     y_std: Float[Array, ""]
+    datum: Float[Array, ""] | None = None
 
     name: ClassVar[str] = "level_dependent_dynamics"
-    n_params: ClassVar[int] = 2
+    n_params: ClassVar[int] = 3
     # No anchored variant (base held at the nominal values). On the 384 records of the
     # independent generator (benchmarks/RESULTS.md, cd021a3) the base-consistency test
     # refused it on all 24 level-law records; its only findings were false ones, on 8
@@ -55,14 +67,21 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     @classmethod
     def from_params(cls, base, params, consts=None):
         mean, std = (0.0, 1.0) if consts is None else (consts[1], consts[2])
-        return cls(base, params[0], params[1], jnp.asarray(mean), jnp.asarray(std))
+        mean, std = jnp.asarray(mean), jnp.asarray(std)
+        # the datum in units of the output's spread from its mean, as the depth
+        return cls(base, params[0], params[1], mean, std, mean + params[2] * std)
 
     def params(self):
-        return jnp.stack([jnp.asarray(self.alpha), jnp.asarray(self.log_depth)])
+        return jnp.stack([jnp.asarray(self.alpha), jnp.asarray(self.log_depth),
+                          (self.datum_level - self.y_mean) / self.y_std])
 
     @property
     def outlet(self):
         return self.y_mean - jnp.exp(self.log_depth) * self.y_std
+
+    @property
+    def datum_level(self):
+        return self.outlet if self.datum is None else jnp.asarray(self.datum)
 
     def scaling(self, level):
         """``s`` at output level ``level``. Below the outlet the law continues as its odd
@@ -90,7 +109,7 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
         rows = [[scaled[i, k] for k in range(na + 1)] for i in range(na + 1)]
         total = [total[k] for k in range(na + 1)]
         gain_a = 1.0 + jnp.sum(a)
-        outlet = self.outlet
+        datum = self.datum_level
 
         def law(level):
             s = self.scaling(level)
@@ -105,7 +124,7 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
             a_s = [poly(rows[i + 1]) * inv_lead for i in range(na)]
             gain_s = poly(total) * inv_lead   # A_s(1)
             g = gain_s / (s * gain_a)         # static gain 1/s times the nominal one
-            return a_s, g, (gain_s - g * gain_a) * outlet
+            return a_s, g, (gain_s - g * gain_a) * datum
 
         return arx_scan(a, b, u, noise, y_forced, lambda u_t, y_t, lags: (u_t, 0.0 * y_t),
                         varying=law)
@@ -123,11 +142,13 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
         mean, std = float(np.mean(y)), max(float(np.std(y)), 1e-12)
         low = mean - float(np.min(y))
         depths = [np.log(max(f * low, 0.05 * std) / std) for f in (1.05, 1.5, 3.0, 10.0)]
-        return np.array([[alpha, d] for alpha in (0.0, 0.1, 0.25, 0.5) for d in depths])
+        origin = -mean / std  # the measured output's zero, in the datum's units
+        return np.array([[alpha, d, datum] for alpha in (0.0, 0.1, 0.25, 0.5) for d in depths
+                         for datum in (-np.exp(d), origin)])
 
     @classmethod
     def scales(cls, ctx):
-        return np.array([0.2, 0.5])
+        return np.array([0.2, 0.5, 0.5])
 
     def describe(self, ctx, info):
         y = np.asarray(info["y"])
@@ -148,6 +169,7 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
                       "regime": "output level"},
             "parameters": {"outflow_exponent": rounded(1 - alpha), "alpha": rounded(alpha),
                            "outlet_level": rounded(outlet),
+                           "datum_level": rounded(float(self.datum_level)),
                            "time_constant_ratio": rounded(ratio)},
         }
 
