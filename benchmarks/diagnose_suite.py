@@ -47,7 +47,11 @@ def diagnose_case(case):
     return d
 
 
-def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, structures=None):
+def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, structures=None,
+        only=None):
+    """Diagnose the generated cases; with ``only`` (a set of effect names, ``None`` for the
+    clean cases) every case is still generated, so the records are those of the full run,
+    but only those cases are diagnosed (a before-and-after comparison of a few effects)."""
     rng = np.random.default_rng(seed)
     # Round-robin over the effects, so that a partial run is balanced.
     jobs = [(e, i) for i in range(max(per_effect, clean))
@@ -67,6 +71,8 @@ def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, str
             rec.update(error=f"generator: {type(exc).__name__}: {exc}")
             records.append(rec)
             log(f"[{k + 1}/{len(jobs)}] {effect}: generator error {exc}")
+            continue
+        if only is not None and effect not in only:
             continue
         try:
             d = diagnose_case(case)
@@ -202,6 +208,10 @@ def main(argv=None):
     p.add_argument("--structures", default=None, metavar="NA,NB,M:...",
                    help="cycle through these base structures (orders drawn at random "
                         "otherwise); with --n, compiled code is shared between cases")
+    p.add_argument("--diagnose-only", default=None, metavar="EFFECTS",
+                   help="comma-separated effect names ('none' for the clean cases): generate "
+                        "every case as usual (the same records as the full run) but diagnose "
+                        "only these")
     p.add_argument("--json", default=None, help="write per-case records and the summary here")
     p.add_argument("--summarise-log", default=None, metavar="FILE",
                    help="no run: rebuild the summary from the per-case lines a (possibly "
@@ -223,8 +233,14 @@ def main(argv=None):
     if args.structures:
         structures = [dict(zip(("na", "nb", "m"), map(int, s.split(","))))
                       for s in args.structures.split(":")]
+    only = None
+    if args.diagnose_only:
+        only = {None if e.strip() == "none" else e.strip()
+                for e in args.diagnose_only.split(",") if e.strip()}
     records = run(effects, args.per_effect, args.clean, args.seed, args.nominal, args.n,
-                  structures=structures)
+                  structures=structures, only=only)
+    if only is not None:
+        effects = [e for e in effects if e in only]
     text = report(records, effects)
     missing = [e for e in effects if e not in hbjax.EFFECTS]
     print()
