@@ -41,10 +41,10 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     drains to its orifice without inflow; at the measured output's zero, the nominal
     block's own origin, the law scales the gain and the time constants of eq. (10) as
     they stand (``A_s y = g B u``), as a gain-scheduled model does. Which one a plant
-    follows depends on where its sensor's zero sits, so the fit chooses; with a single
-    datum, the law's offset term was fitted by the outlet and the other records of the
-    generator in tests/ were named as a curved sensor or a branch degree instead
-    (benchmarks/RESULTS.md). Scaling only the restoring term ``y(t-1) - outlet``
+    follows depends on where its sensor's zero sits, so the fit chooses. With the datum
+    fixed at the outlet, 4 of the 24 level-law records of the generator in tests/ that
+    are named now were named as the refit (2), a curved sensor or friction instead, and
+    2 named then are now the refit's (benchmarks/RESULTS.md). Scaling only the restoring term ``y(t-1) - outlet``
     (an earlier form of this law) is the same for a first-order block but leaves the other
     poles of a higher-order one in place, and was named on a third of such records."""
 
