@@ -196,14 +196,19 @@ def output_path(lay: Layout, theta, consts, y_lin, u_used, clip: bool = True):
     y = y + consts[2] * (g("nl2") * z**2 + g("nl3") * z**3)
     du = u_used - jnp.concatenate([u_used[:1], u_used[:-1]])
     y = y + g("friction") * jnp.tanh(du / consts[3])
-    return jnp.clip(y, g("out_lo"), g("out_hi")) if clip else y
+    return output_clip(lay, theta, y) if clip else y
+
+
+def output_clip(lay: Layout, theta, x):
+    """``x`` clipped to the output levels ``[out_lo, out_hi]``."""
+    return jnp.clip(x, lay.get(theta, "out_lo")[0], lay.get(theta, "out_hi")[0])
 
 
 def clipped_error(lay: Layout, theta, y, eps_pre):
     """One-step error of the predictor ``clip(y - eps_pre, out_lo, out_hi)``: the output
     clip applied to the prediction of the unclipped model (see module docstring); equal
     to ``eps_pre`` where the clip levels are infinite."""
-    return y - jnp.clip(y - eps_pre, lay.get(theta, "out_lo")[0], lay.get(theta, "out_hi")[0])
+    return y - output_clip(lay, theta, y - eps_pre)
 
 
 def whiten(lay: Layout, theta, ints, y, y_pre):
@@ -221,8 +226,7 @@ def prediction_error(lay: Layout, theta, ints, consts, v, y):
     """``(eps, y_sim, u_used)`` of the extended model on a record (noise-free simulation)."""
     y_pre, u_used = simulate_full(lay, theta, ints, consts, v, jnp.zeros_like(v), 0.0,
                                   clip=False)
-    y_sim = jnp.clip(y_pre, lay.get(theta, "out_lo")[0], lay.get(theta, "out_hi")[0])
-    return whiten(lay, theta, ints, y, y_pre), y_sim, u_used
+    return whiten(lay, theta, ints, y, y_pre), output_clip(lay, theta, y_pre), u_used
 
 
 # --- Fast criterion for fitting --------------------------------------------------------
@@ -319,8 +323,7 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
         shaped = y_lin + consts[2] * (g("nl2")[0] * z**2 + g("nl3")[0] * z**3) + add
         # the output error sees the clipped output; the predictor clips its prediction
         # of the unclipped model instead (clipped_error below, module docstring)
-        out = jnp.clip(shaped, g("out_lo")[0], g("out_hi")[0]) if criterion == "simulation" \
-            else shaped
+        out = output_clip(lay, theta, shaped) if criterion == "simulation" else shaped
         r = r - (out - y_lin - add)
     # the ARX equation error of eq. (10) on the extended model's signals
     w = equation_error(a_t, b_t, r, u)
