@@ -75,9 +75,31 @@ def test_quiet_tail_does_not_decide(with_channel):
     before, after = d.split["requested_ratio"]["ratio"], d.split["ratio"]["ratio"]
     assert before < 0.7 and after > 2 * before
     assert after >= 0.7 or d.n_holdout == N // 2
-    ratio = min(np.std(x[d.n_fit:]) / np.std(x[:d.n_fit]) for x in (v, y, np.diff(v)))
+    # the output term is the nominal model's free run (the output the input drives)
+    y_nom = np.asarray(hbjax.simulate(_system(), v))
+    ratio = min(np.std(x[d.n_fit:]) / np.std(x[:d.n_fit]) for x in (v, y_nom, np.diff(v)))
     assert ratio == pytest.approx(after, rel=1e-2)
     assert "moved earlier" in str(d.summary())
+
+
+def test_a_gain_that_drops_after_a_change_does_not_move_the_cut():
+    """The measured output's tail is quieter because the plant changed (its gain drops to
+    a third at 60 % of the record), not because the input rests: the cut stays where it was
+    requested, so the change stays in the fitting part, where it can be found."""
+    rng = np.random.default_rng(4)
+    model = _system()
+    v = _plateaus(rng, N)
+    u = np.asarray(hbjax.play(model.backlash, v))
+    xi = 0.01 * rng.standard_normal(N)
+    change = int(0.6 * N)
+    y = np.zeros(N)
+    for t in range(1, N):
+        y[t] = 0.7 * y[t - 1] + (0.3 if t < change else 0.1) * u[t - 1] + xi[t]
+    requested = N - round(0.3 * N)
+    assert np.std(y[requested:]) < 0.7 * np.std(y[:requested])  # the measured tail is quiet
+    d = hbjax.diagnose(model, v, y, effects=["parameter_change"], progress=False)
+    assert not d.split["moved"] and d.n_fit == requested
+    assert d.best is not None and d.best.effect == "parameter_change", d.summary()
 
 
 def test_without_the_channel_the_structure_is_not_consistent():

@@ -149,9 +149,13 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
         raise ValueError(f"`split` must be 'excited' or 'tail', got {split!r}.")
     channels = chan.check_channels(channels, len(v))
     p_base = model.arx.na + model.arx.nb + 2 * model.backlash.m
-    n_fit, split_report = ho.choose_split(v, y, holdout, min_fit=max(100, 10 * (2 * p_base + 10)),
-                                          mode=split)
     lay, theta_nom = base_theta(model)
+    # 1. Nominal behaviour over the whole record (its free run also places the split).
+    consts0 = jnp.asarray([max(float(np.max(np.abs(v))), 1e-12), 0.0, 1.0, 1.0])
+    _, eps_nom, ysim_nom, u_nom = (np.asarray(a[0]) for a in evaluate_batch(
+        lay, theta_nom[None], jnp.asarray(cands._ints())[None], consts0, v, y))
+    n_fit, split_report = ho.choose_split(v, ysim_nom, holdout,
+                                          min_fit=max(100, 10 * (2 * p_base + 10)), mode=split)
     burn = lay.na + lay.nb + MAX_DELAY + 4
     if criterion == "simulation":
         # no noise model in an output-error fit, and the change model's criterion is only
@@ -162,10 +166,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
     T = len(v)
     K = 2 * lay.p_base
 
-    # 1. Nominal behaviour and its residual tests (fitting segment only).
-    consts0 = jnp.asarray([max(float(np.max(np.abs(v))), 1e-12), 0.0, 1.0, 1.0])
-    _, eps_nom, ysim_nom, u_nom = (np.asarray(a[0]) for a in evaluate_batch(
-        lay, theta_nom[None], jnp.asarray(cands._ints())[None], consts0, v, y))
+    # The fitting segment: its constants, Jacobian and residual tests.
     du = np.abs(np.diff(u_nom[:n_fit]))
     width = 0.1 * float(np.median(du[du > 1e-12 * (np.max(du) + 1e-300)])) if np.any(du > 0) else 1.0
     consts = jnp.asarray([float(consts0[0]), float(np.mean(y_fit)),

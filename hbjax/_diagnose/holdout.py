@@ -11,7 +11,11 @@ The split stays a single cut (the simulation of the held-out part continues from
 state the fitting part ends in, as a user's validation would). Its position is chosen by
 **excitation**: the spread of the input, of the output and of the input's rate (standard
 deviations) in the held-out part, each relative to the same quantity in the fitting part.
-The smallest of the three ratios is the split's excitation ratio. The requested fraction
+The smallest of the three ratios is the split's excitation ratio. The output
+:func:`hbjax.diagnose` passes is the nominal model's free run, the output the input drives
+as the model sees it: the measured output carries the very mismatch under diagnosis (a
+plant whose gain drops after a parameter change shows a quieter measured tail, and moving
+the cut for it put the change into the held-out part, where no fit can see it). The requested fraction
 is kept when its ratio is at least :data:`MIN_RATIO`; otherwise the cut moves earlier (held-out
 fractions up to :data:`MAX_FRACTION`, in steps of 2.5% of the record) to the first position whose
 ratio reaches :data:`MIN_RATIO`, or to the largest ratio when none does, so that the held-out
