@@ -312,6 +312,37 @@ def test_plateau_signature_on_both_sides():
     assert hbjax._diagnose.residual_tests.plateaus(y, -1)["level"] == -0.7
 
 
+def test_clip_touched_on_separate_samples_is_a_signature():
+    """A fast, noisy output touches its clip on separate samples (it leaves the limit on
+    the noise and comes back): no run of three at the level, but many more samples exactly
+    there than at any other value. A quantised signal repeats values everywhere and shows
+    no signature."""
+    rng = np.random.default_rng(2)
+    y = 0.5 * np.sin(np.arange(4000) / 3.0) + 0.3 * rng.standard_normal(4000)
+    level = float(np.quantile(y, 0.995))
+    sig = hbjax._diagnose.residual_tests.plateaus(np.minimum(y, level), +1)
+    assert sig["level"] == level and sig["samples"] >= 20 and sig["longest_run"] < 3
+    assert sum(b - a for a, b in sig["windows"]) >= sig["samples"]
+    assert hbjax._diagnose.residual_tests.plateaus(y, +1) is None
+    quantised = np.round(y * 20) / 20
+    assert hbjax._diagnose.residual_tests.plateaus(quantised, +1) is None
+    assert hbjax._diagnose.residual_tests.plateaus(quantised, -1) is None
+
+
+def test_event_sign_test():
+    event_sign_test = hbjax._diagnose.residual_tests.event_sign_test
+    changed = np.zeros(200, bool)
+    for start in range(10, 200, 28):  # seven events, two samples each
+        changed[start:start + 2] = True
+    ref = np.where(changed, 1.0, 0.1)
+    res = event_sign_test(ref, np.where(changed, 0.2, 0.1), changed)
+    assert res == {"events": 7, "better": 7, "p": 1 / 128}
+    worse_in_two = np.where(changed, 0.2, 0.1)
+    worse_in_two[10:12] = worse_in_two[38:40] = 3.0
+    res = event_sign_test(ref, worse_in_two, changed)
+    assert res["better"] == 5 and res["p"] == pytest.approx(29 / 128)
+
+
 def _sweep_through_resonance(clip):
     """A swept sine through a resonance early in the record: the output is largest, and
     clipped, only in the first half, so the held-out tail never reaches the clip."""
