@@ -102,6 +102,29 @@ def test_a_gain_that_drops_after_a_change_does_not_move_the_cut():
     assert d.best is not None and d.best.effect == "parameter_change", d.summary()
 
 
+def test_a_move_of_the_cut_keeps_a_late_change_in_the_fitting_part():
+    """The input quietens over the last quarter, so excitation alone would move the cut to
+    before a gain drop at 55 % of the record, leaving no changed sample to fit; the
+    nominal free-run error shows the mismatch lies after the change, and the cut stays
+    behind it."""
+    rng = np.random.default_rng(5)
+    model = _system()
+    v = _plateaus(rng, N)
+    v[int(0.75 * N):] *= 0.3
+    u = np.asarray(hbjax.play(model.backlash, v))
+    xi = 0.01 * rng.standard_normal(N)
+    change = int(0.55 * N)
+    y = np.zeros(N)
+    for t in range(1, N):
+        y[t] = 0.7 * y[t - 1] + (0.3 if t < change else 0.12) * u[t - 1] + xi[t]
+    y_nom = np.asarray(hbjax.simulate(model, v))
+    moved, _ = hbjax._diagnose.holdout.choose_split(v, y_nom, 0.3, min_fit=100)
+    assert moved < change  # by excitation alone the change would be held out
+    d = hbjax.diagnose(model, v, y, effects=["parameter_change"], progress=False)
+    assert d.n_fit > change, d.split
+    assert d.best is not None and d.best.effect == "parameter_change", d.summary()
+
+
 def test_without_the_channel_the_structure_is_not_consistent():
     model, v, y, _ = _aux_record(0)
     d = hbjax.diagnose(model, v, y, effects=["parameter_mismatch"], progress=False)

@@ -101,7 +101,8 @@ def diagnose(model: Hammerstein, v, y=None, *, holdout: float = 0.3, effects=Non
     - `split`: ``"excited"`` (default): the held-out part is the last `holdout` fraction
       unless that tail is less excited than the fitting part (input, output or input-rate
       spread below 70% of the fitting part's); then the cut moves earlier (up to half the
-      record) until it is excited enough, so that a quiet tail cannot decide.
+      record) until it is excited enough, so that a quiet tail cannot decide, but not to
+      where the nominal model's free-run error would lie mostly in the held-out part.
       ``"tail"``: exactly the last `holdout` fraction. ``Diagnosis.split`` reports it.
     - `channels`: other recorded signals, ``{name: array}`` of the record's length (a
       velocity, a normal force, a second actuator...); by default those of a
@@ -154,9 +155,13 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
     consts0 = jnp.asarray([max(float(np.max(np.abs(v))), 1e-12), 0.0, 1.0, 1.0])
     _, eps_nom, ysim_nom, u_nom = (np.asarray(a[0]) for a in evaluate_batch(
         lay, theta_nom[None], jnp.asarray(cands._ints())[None], consts0, v, y))
-    n_fit, split_report = ho.choose_split(v, ysim_nom, holdout,
-                                          min_fit=max(100, 10 * (2 * p_base + 10)), mode=split)
     burn = lay.na + lay.nb + MAX_DELAY + 4
+    # where the nominal model misses (its free-run error), so a move of the cut cannot take
+    # the mismatch out of the fitting part; the start-up samples are left out
+    free_run_error = np.where(np.arange(len(y)) < burn, np.nan, y - ysim_nom)
+    n_fit, split_report = ho.choose_split(v, ysim_nom, holdout,
+                                          min_fit=max(100, 10 * (2 * p_base + 10)), mode=split,
+                                          error=free_run_error)
     if criterion == "simulation":
         # no noise model in an output-error fit, and the change model's criterion is only
         # an approximation of the output error after the change
