@@ -1,7 +1,8 @@
 """The rule that reports a mechanism on its held-out one-step prediction gain where a noise
 model could mimic that gain in prediction (`noise_rival`): it must beat that noise model by
 the BIC margin, gain significantly in held-out prediction over its reference and the
-nominal model, and not simulate significantly worse than its reference."""
+nominal model, and not simulate significantly worse than its reference or the nominal
+model."""
 
 import types
 
@@ -28,15 +29,16 @@ def test_prediction_gain_counts_only_past_the_noise_model_by_the_margin(effect):
     nominal, reference = {"fit_pred": 90.0}, {"fit_pred": 92.0}
 
     def margin(own_bic=-1000.0, rival_bic=-1000.0 + BIC_MARGIN + 5, dm=0.5, dm_pred=DM_Z + 1,
-               fit_pred=93.0):
+               fit_pred=93.0, dm_sim_nom=0.3):
         own = {"bic": own_bic, "fit_pred": fit_pred}
         stats = [nominal, own, {"bic": rival_bic}]
         return _margin_over_noise_rival(candidate, own, stats, names, dm, dm_pred, reference,
-                                        nominal)
+                                        nominal, dm_sim_nom)
 
     assert margin() == pytest.approx(BIC_MARGIN + 5)
     assert margin(rival_bic=-1000.0 + BIC_MARGIN - 1) is None      # the noise model does as well
     assert margin(dm_pred=DM_Z - 0.1) is None                      # no significant prediction gain
     assert margin(dm=-DM_Z - 0.1) is None                          # free run significantly worse
+    assert margin(dm_sim_nom=-DM_Z - 0.1) is None                  # ... than the nominal model's
     assert margin(fit_pred=91.0) is None                           # not above its reference
     assert margin(rival_bic=float("nan")) is None                  # a failed rival proves nothing
