@@ -48,8 +48,8 @@ def test_recorded_signature_outranks_its_rivals_and_nothing_else():
 def test_clip_signature_appears_only_in_clipped_outputs():
     """Over random systems, inputs, lengths and noise levels of the independent generator
     (tests/generators): the plateau signature the ranking relies on is found on clipped
-    outputs (40 of 40 over ten seeds in benchmarks/RESULTS.md; here at least one of two) and on no record
-    of any other effect or a clean one."""
+    outputs (40 of 40 over ten seeds in benchmarks/RESULTS.md; here at least one of two)
+    and on no record of any other effect or a clean one."""
     found, total = collections.Counter(), collections.Counter()
     for seed in (11, 12):
         rng = np.random.default_rng(seed)

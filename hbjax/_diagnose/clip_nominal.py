@@ -70,7 +70,8 @@ def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names
     or of the free-run errors); on the held-out part a plateau at the same level
     (an independent, model-free confirmation), at least MIN_CHANGED samples the clip
     changes and a significant error reduction on them (the only samples where the two
-    errors differ: :func:`_significant`), and a held-out fit above both the nominal model's and the refit's.
+    errors differ: :func:`_significant`), and a held-out fit above both the nominal
+    model's and the refit's.
     Where the held-out part never reaches the fitted clip (fewer than MIN_CHANGED samples
     change there), the held-out tests are replaced by a cross-validation over contiguous
     folds of the whole record (:func:`_folds`); the BIC gain on the fitting segment and a
@@ -192,7 +193,8 @@ def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names
         "validation": validation,
         "reference": "nominal", "delta_bic_vs_nominal": dbic,
         "delta_bic_vs_refit": stats[ref_i]["bic"] - bic_main, "bic": bic_main,
-        "dm_z": dm_changed, "event_sign_test": sign, "dm_z_whole_holdout": dm_all, "held_out_samples_changed": n_changed,
+        "dm_z": dm_changed, "event_sign_test": sign, "dm_z_whole_holdout": dm_all,
+        "held_out_samples_changed": n_changed,
         "reference_fit": fit_before, "refit_fit": fit_refit, "parameters_fitted": k,
         "signature": {s: sig[s] for s in sig if sig[s]},
         "held_out_plateaus": {s: dict(held[s], windows=[[a_ + n_fit, b_ + n_fit] for a_, b_ in

@@ -15,11 +15,12 @@ The smallest of the three ratios is the split's excitation ratio. The output
 :func:`hbjax.diagnose` passes is the nominal model's free run, the output the input drives
 as the model sees it: the measured output carries the very mismatch under diagnosis (a
 plant whose gain drops after a parameter change shows a quieter measured tail, and moving
-the cut for it put the change into the held-out part, where no fit can see it). The requested fraction
-is kept when its ratio is at least :data:`MIN_RATIO`; otherwise the cut moves earlier (held-out
-fractions up to :data:`MAX_FRACTION`, in steps of 2.5% of the record) to the first position whose
-ratio reaches :data:`MIN_RATIO`, or to the largest ratio when none does, so that the held-out
-part also holds excited data and a quiet tail cannot decide.
+the cut for it put the change into the held-out part, where no fit can see it). The
+requested fraction is kept when its ratio is at least :data:`MIN_RATIO`; otherwise the cut
+moves earlier (held-out fractions up to :data:`MAX_FRACTION`, in steps of 2.5% of the
+record) to the first position whose ratio reaches :data:`MIN_RATIO`, or to the largest
+ratio when none does, so that the held-out part also holds excited data and a quiet tail
+cannot decide.
 
 A move must not take the mismatch out of the fitting part. The nominal model's free-run
 error (measured output minus that free run) shows where the mismatch is; a cut is skipped

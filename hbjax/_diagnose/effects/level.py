@@ -44,9 +44,10 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     follows depends on where its sensor's zero sits, so the fit chooses. With the datum
     fixed at the outlet, 4 of the 24 level-law records of the generator in tests/ that
     are named now were named as the refit (2), a curved sensor or friction instead, and
-    2 named then are now the refit's (benchmarks/RESULTS.md). Scaling only the restoring term ``y(t-1) - outlet``
-    (an earlier form of this law) is the same for a first-order block but leaves the other
-    poles of a higher-order one in place, and was named on a third of such records."""
+    2 named then are now the refit's (benchmarks/RESULTS.md). Scaling only the restoring
+    term ``y(t-1) - outlet`` (an earlier form of this law) is the same for a first-order
+    block but leaves the other poles of a higher-order one in place, and was named on a
+    third of such records."""
 
     base: Hammerstein
     alpha: Float[Array, ""]
