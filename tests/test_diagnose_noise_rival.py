@@ -15,9 +15,10 @@ RIVALLED = [name for name, cls in hbjax.EFFECTS.items() if cls.noise_rival is no
 
 
 def test_dynamics_effects_name_the_noise_model_that_mimics_them_in_prediction():
-    # both change the input-to-output dynamics, and both gain in one-step prediction as an
-    # AR noise model does; nothing else may take the prediction-only path
-    assert sorted(RIVALLED) == ["level_dependent_dynamics", "unmodeled_dynamics"]
+    # each changes the input-to-output dynamics inside the loop, and each gains in one-step
+    # prediction as an AR noise model does; nothing else may take the prediction-only path
+    assert sorted(RIVALLED) == ["coulomb_friction", "level_dependent_dynamics",
+                                "unmodeled_dynamics"]
     assert all(hbjax.EFFECTS[n].noise_rival == "colored_noise" for n in RIVALLED)
 
 
