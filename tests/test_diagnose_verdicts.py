@@ -82,19 +82,27 @@ def test_quiet_tail_does_not_decide(with_channel):
     assert "moved earlier" in str(d.summary())
 
 
+def _gain_drop(seed, change, gain_after, quiet_from=None):
+    """The system with its input gain 0.3 dropping to ``gain_after`` at sample ``change``
+    (plateau input, its amplitude cut to 30 % from ``quiet_from`` on)."""
+    rng = np.random.default_rng(seed)
+    model = _system()
+    v = _plateaus(rng, N)
+    if quiet_from is not None:
+        v[quiet_from:] *= 0.3
+    u = np.asarray(hbjax.play(model.backlash, v))
+    xi = 0.01 * rng.standard_normal(N)
+    y = np.zeros(N)
+    for t in range(1, N):
+        y[t] = 0.7 * y[t - 1] + (0.3 if t < change else gain_after) * u[t - 1] + xi[t]
+    return model, v, y
+
+
 def test_a_gain_that_drops_after_a_change_does_not_move_the_cut():
     """The measured output's tail is quieter because the plant changed (its gain drops to
     a third at 60 % of the record), not because the input rests: the cut stays where it was
     requested, so the change stays in the fitting part, where it can be found."""
-    rng = np.random.default_rng(4)
-    model = _system()
-    v = _plateaus(rng, N)
-    u = np.asarray(hbjax.play(model.backlash, v))
-    xi = 0.01 * rng.standard_normal(N)
-    change = int(0.6 * N)
-    y = np.zeros(N)
-    for t in range(1, N):
-        y[t] = 0.7 * y[t - 1] + (0.3 if t < change else 0.1) * u[t - 1] + xi[t]
+    model, v, y = _gain_drop(4, change := int(0.6 * N), gain_after=0.1)
     requested = N - round(0.3 * N)
     assert np.std(y[requested:]) < 0.7 * np.std(y[:requested])  # the measured tail is quiet
     d = hbjax.diagnose(model, v, y, effects=["parameter_change"], progress=False)
@@ -107,16 +115,8 @@ def test_a_move_of_the_cut_keeps_a_late_change_in_the_fitting_part():
     before a gain drop at 55 % of the record, leaving no changed sample to fit; the
     nominal free-run error shows the mismatch lies after the change, and the cut stays
     behind it."""
-    rng = np.random.default_rng(5)
-    model = _system()
-    v = _plateaus(rng, N)
-    v[int(0.75 * N):] *= 0.3
-    u = np.asarray(hbjax.play(model.backlash, v))
-    xi = 0.01 * rng.standard_normal(N)
-    change = int(0.55 * N)
-    y = np.zeros(N)
-    for t in range(1, N):
-        y[t] = 0.7 * y[t - 1] + (0.3 if t < change else 0.12) * u[t - 1] + xi[t]
+    model, v, y = _gain_drop(5, change := int(0.55 * N), gain_after=0.12,
+                             quiet_from=int(0.75 * N))
     y_nom = np.asarray(hbjax.simulate(model, v))
     moved, _ = hbjax._diagnose.holdout.choose_split(v, y_nom, 0.3, min_fit=100)
     assert moved < change  # by excitation alone the change would be held out
