@@ -92,14 +92,14 @@ def choose_split(v, y, holdout: float, min_fit: int, min_hold: int = 50,
     if mode == "tail" or first["ratio"] >= MIN_RATIO:
         return requested, dict(report, n_fit=requested, ratio=first)
     best_n, best = requested, first
-    limit = (None if error is None
-             else max(MAX_ERROR_RATIO, error_ratio(np.asarray(error, float), requested)))
+    error = None if error is None else np.asarray(error, float)
+    limit = None if error is None else max(MAX_ERROR_RATIO, error_ratio(error, requested))
     fractions = np.arange(holdout + _STEP, max(MAX_FRACTION, holdout) + 1e-9, _STEP)
     for h in fractions:
         n_fit = n - int(round(h * n))
         if n_fit < min_fit or n - n_fit < min_hold:
             continue
-        if limit is not None and error_ratio(np.asarray(error, float), n_fit) > limit:
+        if limit is not None and error_ratio(error, n_fit) > limit:
             continue  # the mismatch would leave the fitting part
         r = excitation_ratio(v, y, n_fit)
         if r["ratio"] > best["ratio"] + 1e-12:

@@ -150,8 +150,9 @@ def event_sign_test(ref: np.ndarray, new: np.ndarray, changed: np.ndarray,
     Returns ``{"events", "better", "p"}`` (``p``: probability of at least ``better`` of
     ``events`` under no difference)."""
     d = np.asarray(ref, float) ** 2 - np.asarray(new, float) ** 2
-    groups = windows(np.asarray(changed, bool), min_gap=gap, min_len=1, limit=len(d))
-    scores = [float(np.sum(d[a:b][np.asarray(changed, bool)[a:b]])) for a, b in groups]
+    changed = np.asarray(changed, bool)
+    groups = windows(changed, min_gap=gap, min_len=1, limit=len(d))
+    scores = [float(np.sum(d[a:b][changed[a:b]])) for a, b in groups]
     events, better = len(scores), sum(1 for x in scores if x > 0)
     p = sum(math.comb(events, k) for k in range(better, events + 1)) / 2.0 ** events
     return {"events": events, "better": better, "p": float(p)}
@@ -204,10 +205,9 @@ def plateaus(y: np.ndarray, side: int, *, min_samples: int = 5, min_run: int = 3
     longest = max((b - a for a, b in on), default=0)
     elsewhere = max((b - a for a, b, val in runs
                      if abs(val - level) > tol and abs(val - other) > tol), default=1)
-    inner = y[(np.abs(y - level) > tol) & (np.abs(y - other) > tol)]
-    # values equal up to tol counted together: sorted, split where consecutive ones differ
-    repeats = (max(len(g) for g in np.split(np.sort(inner), np.flatnonzero(
-        np.diff(np.sort(inner)) > tol) + 1)) if inner.size else 1)
+    # how often any other value repeats: its runs once the values are sorted
+    inner = np.sort(y[(np.abs(y - level) > tol) & (np.abs(y - other) > tol)])
+    repeats = max((b - a for a, b, _ in _runs_of_equal(inner, tol)), default=1)
     by_run = longest >= min_run and longest >= 2 * elsewhere
     by_count = int(at.sum()) >= 2 * repeats
     if not (by_run or by_count):
