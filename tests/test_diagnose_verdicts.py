@@ -122,6 +122,10 @@ def test_a_move_of_the_cut_keeps_a_late_change_in_the_fitting_part():
     assert moved < change  # by excitation alone the change would be held out
     d = hbjax.diagnose(model, v, y, effects=["parameter_change"], progress=False)
     assert d.n_fit > change, d.split
+    skipped = d.split["skipped_for_error"]  # the report says which cuts the guard refused
+    assert skipped and all(s["error_ratio"] > d.split["error_limit"] for s in skipped)
+    assert min(s["holdout"] for s in skipped) > d.n_holdout / N
+    assert "earlier cuts not taken" in str(d.summary())
     assert d.best is not None and d.best.effect == "parameter_change", d.summary()
 
 

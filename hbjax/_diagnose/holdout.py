@@ -81,7 +81,8 @@ def choose_split(v, y, holdout: float, min_fit: int, min_hold: int = 50,
     the largest ratio (the requested cut when nothing is better). With ``error`` (the
     nominal model's free-run error, NaN where it is left out), cuts whose
     :func:`error_ratio` exceeds both :data:`MAX_ERROR_RATIO` and the requested cut's are
-    skipped.
+    skipped; the report then lists them (``"skipped_for_error"``: held-out fractions and
+    their error ratios) with the limit (``"error_limit"``).
     """
     v, y = np.asarray(v, float), np.asarray(y, float)
     n = len(v)
@@ -94,17 +95,21 @@ def choose_split(v, y, holdout: float, min_fit: int, min_hold: int = 50,
     best_n, best = requested, first
     error = None if error is None else np.asarray(error, float)
     limit = None if error is None else max(MAX_ERROR_RATIO, error_ratio(error, requested))
+    skipped = []
     fractions = np.arange(holdout + _STEP, max(MAX_FRACTION, holdout) + 1e-9, _STEP)
     for h in fractions:
         n_fit = n - int(round(h * n))
         if n_fit < min_fit or n - n_fit < min_hold:
             continue
-        if limit is not None and error_ratio(error, n_fit) > limit:
+        if limit is not None and (e := error_ratio(error, n_fit)) > limit:
+            skipped.append({"holdout": float((n - n_fit) / n), "error_ratio": e})
             continue  # the mismatch would leave the fitting part
         r = excitation_ratio(v, y, n_fit)
         if r["ratio"] > best["ratio"] + 1e-12:
             best_n, best = n_fit, r
         if r["ratio"] >= MIN_RATIO:  # the smallest move that is excited enough
             break
+    if limit is not None:
+        report.update(error_limit=float(limit), skipped_for_error=skipped)
     return best_n, dict(report, n_fit=best_n, ratio=best, moved=best_n != requested,
                         holdout=float((n - best_n) / n))
