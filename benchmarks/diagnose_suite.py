@@ -78,6 +78,13 @@ def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, str
             d = diagnose_case(case)
             rec["top"] = d.best.effect if d.best is not None else None
             rec["findings"] = [f.effect for f in d.findings]
+            # every candidate's criterion, held-out fits, tests and decision, so that a
+            # decision rule can be re-evaluated on these records without re-diagnosing
+            rec["candidates"] = {
+                name: {k: row[k] for k in ("bic", "k", "fit_sim", "fit_pred", "dbic", "dm_z",
+                                           "dm_z_simulation", "base_p", "decision") if k in row}
+                for name, row in d.candidates.items()}
+            rec["n_fit"] = d.n_fit
         except Exception as exc:  # noqa: BLE001
             rec["error"] = f"diagnose: {type(exc).__name__}: {str(exc)[:300]}"
         rec["seconds"] = time.perf_counter() - t0
