@@ -173,6 +173,16 @@ def positive_int(x, name: str, *, minimum: int = 1) -> int:
     return int(x)
 
 
+def check_bool(x, name: str) -> bool:
+    """A flag of the public API (``throw``, ``overwrite``, ...): a Python or NumPy bool,
+    returned as ``bool``. Checked in Python at the function's entry (a static argument):
+    a string such as ``"false"`` is truthy and an integer may be a slip for another
+    argument, so anything else raises a ``TypeError`` naming ``name``."""
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    raise TypeError(f"`{name}` must be True or False, got {x!r}.")
+
+
 def positive_float(x, name: str, *, allow_zero: bool = False) -> float:
     """A concrete finite number > 0 (or >= 0 with `allow_zero`): an amplitude such as
     ``h_m``, a noise level, a solver tolerance."""
@@ -187,6 +197,22 @@ def positive_float(x, name: str, *, allow_zero: bool = False) -> float:
         bound = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"`{name}` must be a finite number {bound}, got {x!r}.")
     return val
+
+
+def is_real_scalar(x) -> bool:
+    """A Python or NumPy real number (``np.float32(0.3)``, ``np.int64(2)``), not a bool: the
+    scalars a float argument such as a fraction accepts (complex, strings, arrays are not)."""
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
+
+
+def fraction(x, name: str) -> float:
+    """A concrete real number strictly between 0 and 1 (a share of a record, such as
+    ``holdout``), returned as ``float``."""
+    if not is_real_scalar(x):
+        raise TypeError(f"`{name}` must be a fraction in (0, 1), got {x!r}.")
+    if not 0 < x < 1:  # (False for NaN)
+        raise ValueError(f"`{name}` must be a fraction in (0, 1), got {x!r}.")
+    return float(x)
 
 
 def lagged(x, lag: int):

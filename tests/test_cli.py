@@ -119,6 +119,53 @@ def test_bad_design_is_a_clear_error(tmp_path, capsys):
         assert err.startswith("hbjax signals: error: --design") and err.count("\n") == 1
 
 
+def test_design_with_a_repeated_key_is_refused(tmp_path, capsys):
+    # A later value used to win silently: n=3 here, not the n=2 the user may have read.
+    assert main(["signals", "--design", "n=2,m=3,h_m=4,n=3", "--samples", "20", "--prefix",
+                 str(tmp_path / "v")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--design gives 'n' twice" in err
+    assert not list(tmp_path.iterdir())
+
+
+def _giri_records(tmp_path, system, h_m, samples=200):
+    """The three experiments of design n=2, m=3, ``h_m``, saved as `hbjax simulate` does
+    (columns v, y); returns the file names."""
+    design = hbjax.GiriDesign(2, 3, h_m)
+    names = []
+    for k, v in enumerate((design.constant_input(samples), design.binary_input(samples),
+                           design.staircase_input(samples)), 1):
+        y = np.asarray(hbjax.simulate(system, v))
+        hbjax.save_recording(tmp_path / f"y{k}.csv", hbjax.Recording(v, y))
+        names.append(str(tmp_path / f"y{k}.csv"))
+    return names
+
+
+def test_identify_giri_checks_the_recorded_inputs(tmp_path, system, capsys):
+    # Recorded with h_m = 4, identified as h_m = 8: the v column says so.
+    records = _giri_records(tmp_path, system, 4.0)
+    out = tmp_path / "m.json"
+    assert main(["identify", "giri", "--design", "n=2,m=3,h_m=8", *records, "--out",
+                 str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("hbjax identify giri: error: `v1`")
+    assert "y1.csv" in err and "--design" in err and not out.exists()
+    assert main(["identify", "giri", "--design", "n=2,m=3,h_m=4", *records, "--out",
+                 str(out)]) == 0
+    np.testing.assert_allclose(hbjax.flatten_params(hbjax.load_model(out)),
+                               hbjax.flatten_params(hbjax.normalise(system, 4.0)), atol=1e-6)
+    # An input column named as the output column is a slip, not a recorded input.
+    assert main(["identify", "giri", "--design", "n=2,m=3,h_m=4", *records, "--input", "y",
+                 "--out", str(tmp_path / "m2.json")]) == 1
+    assert "--input and --output name the same column" in capsys.readouterr().err
+    # Output-only files (one column) have nothing to check and still work.
+    for path in records:
+        y = hbjax.load_recording(path).y
+        pathlib.Path(path).write_text("y\n" + "".join(f"{float(x)!r}\n" for x in y))
+    assert main(["identify", "giri", "--design", "n=2,m=3,h_m=4", *records, "--out",
+                 str(tmp_path / "m3.json")]) == 0
+
+
 def test_console_script_is_installed():
     script = pathlib.Path(sys.executable).parent / "hbjax"
     if not script.exists():

@@ -126,3 +126,75 @@ def test_effects_argument_is_checked(system):
         hbjax.diagnose(system, v, y, effects=[int])
     with pytest.raises(TypeError, match="abstract"):
         hbjax.diagnose(system, v, y, effects=[hbjax.AbstractEffect])
+
+
+# --- the effects' parameter constraints (AbstractEffect.constraints) ---------------------
+
+FX = hbjax.EFFECTS
+
+
+@pytest.mark.parametrize("build, error, match", [
+    # numeric, not a string, a boolean or None (unless the field is optional)
+    (lambda m: FX["output_saturation"](m, None, "abc"), TypeError, r"OutputSaturation\.upper"),
+    (lambda m: FX["input_saturation"](m, True, None), TypeError, r"InputSaturation\.lower"),
+    (lambda m: FX["offset_drift"](m, None, 0.0), TypeError, r"OffsetDrift\.offset.*None"),
+    # finite
+    (lambda m: FX["output_saturation"](m, None, jnp.nan), ValueError, r"upper` must be finite"),
+    (lambda m: FX["output_saturation"](m, -jnp.inf, 1.0), ValueError, r"lower` must be finite"),
+    (lambda m: FX["harmonic_distortion"](m, 0.0, jnp.inf, 0.0, 1.0), ValueError,
+     r"HarmonicDistortion\.h2` must be finite"),
+    # the documented shape: a scalar, a fixed length or the base's orders
+    (lambda m: FX["output_saturation"](m, None, jnp.ones(3)), ValueError,
+     r"upper` must be a scalar, got shape \(3,\)"),
+    (lambda m: FX["colored_noise"](m, jnp.zeros(3)), ValueError, r"ColoredNoise\.d.*\(2,\)"),
+    (lambda m: FX["parameter_change"](m, 5, jnp.zeros(3), jnp.zeros(2), jnp.zeros(3),
+                                      jnp.zeros(3)), ValueError, r"ParameterChange\.da.*\(2,\)"),
+    # ordered pair: a clip's lower level below its upper one
+    (lambda m: FX["output_saturation"](m, jnp.asarray(5.0), jnp.asarray(3.0)), ValueError,
+     r"OutputSaturation\.lower` \(5\.0\) must be below"),
+    (lambda m: FX["input_saturation"](m, 2.0, 2.0), ValueError, "must be below"),
+    # positive widths and scales
+    (lambda m: FX["coulomb_friction"](m, 0.1, 0.0, 0.0), ValueError,
+     r"CoulombFrictionInLoop\.width` must be > 0"),
+    (lambda m: FX["level_dependent_dynamics"](m, 0.5, 0.0, 1.0, -1.0), ValueError,
+     r"y_std` must be > 0"),
+    # a delay or change time: a non-negative integer within the kernel's range
+    (lambda m: FX["extra_delay"](m, 2.5), TypeError, r"ExtraDelay\.delay` must be an integer"),
+    (lambda m: FX["extra_delay"](m, -1), ValueError, r"ExtraDelay\.delay"),
+    (lambda m: FX["extra_delay"](m, 13), ValueError, r"ExtraDelay\.delay` must be in \[0, 12\]"),
+    (lambda m: FX["parameter_change"](m, -3, *(jnp.zeros(k) for k in (2, 2, 3, 3))),
+     ValueError, r"ParameterChange\.time"),
+])
+def test_effect_constructors_check_their_parameters(system, build, error, match):
+    with pytest.raises(error, match=match):
+        build(system)
+
+
+def test_valid_effects_and_traced_values_pass(system):
+    ok = FX["output_saturation"](system, None, 3)  # an open side; an integer level
+    assert ok.upper == 3
+    FX["extra_delay"](system, 0)
+    FX["input_saturation"](system, jnp.asarray(-2.0), jnp.asarray(3.0))
+    # traced values: shape and type are checked, values (unknown while tracing) are not
+    v = jnp.linspace(-3, 3, 40)
+    clip = jax.jit(lambda x: FX["output_saturation"](system, None, x).upper)
+    assert bool(jnp.isnan(clip(jnp.nan)))
+    levels = jax.vmap(lambda x: FX["output_saturation"](system, -x, x).upper)(jnp.ones(2))
+    np.testing.assert_array_equal(levels, [1.0, 1.0])
+    grad = jax.grad(lambda x: jnp.sum(hbjax.simulate(FX["input_saturation"](system, None, x), v)))
+    assert np.isfinite(grad(2.0))
+    with pytest.raises(ValueError, match="must be a scalar"):
+        jax.jit(lambda x: FX["output_saturation"](system, None, x))(jnp.ones(2))
+
+
+def test_a_new_effect_gets_checks_by_declaring_them(system):
+    from hbjax._diagnose.effect_base import Constraint
+
+    class TimedStep(OutputStep):
+        constraints: ClassVar[dict] = {"height": Constraint(),
+                                       "time": Constraint(minimum=0.0)}
+
+    TimedStep(system, jnp.asarray(1.0), jnp.asarray(5.0))
+    with pytest.raises(ValueError, match=r"TimedStep\.time` must be in \[0\.0, inf\]"):
+        TimedStep(system, jnp.asarray(1.0), jnp.asarray(-5.0))
+    OutputStep(system, jnp.asarray(1.0), jnp.asarray(-5.0))  # declares nothing: unchecked

@@ -132,6 +132,37 @@ def test_special_files_are_written_into_never_replaced(tmp_path):
     assert os.path.islink(tmp_path / "alias.json") and hbjax.load_model(real) is not None
 
 
+@pytest.mark.skipif(not pathlib.Path("/proc/self/fd").is_dir(), reason="needs /proc")
+def test_redirected_stdout_is_written_into_other_proc_names_are_not(tmp_path, monkeypatch):
+    # `--out /dev/stdout` with standard output redirected to a file appends to that file,
+    # also through /dev/fd/1 and /proc/self/fd/1: these name an open file.
+    hbjax.save_model(tmp_path / "m.json", M)
+    hbjax.save_recording(tmp_path / "v.csv", hbjax.Recording([1.0, 2.0], [0.0, 0.0]))
+    out = tmp_path / "out.txt"
+    out.write_text("before\n")
+    for name in ("/dev/stdout", "/dev/fd/1", "/proc/self/fd/1"):
+        with open(out, "ab") as fh:
+            proc = subprocess.run([sys.executable, "-m", "hbjax", "simulate", "--model", "m.json",
+                                   "--input", "v.csv", "--out", name], cwd=tmp_path,
+                                  stdout=fh, stderr=subprocess.PIPE, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+    text = out.read_text()
+    assert text.startswith("before\n") and text.count("v,y") == 3
+    # A regular file reached through /proc/self/cwd or /proc/self/root is an ordinary file:
+    # kept without overwrite, replaced with it (it used to be appended to).
+    monkeypatch.chdir(tmp_path)
+    user = tmp_path / "user.json"
+    for name in ("/proc/self/cwd/user.json", f"/proc/self/root{user}"):
+        user.write_text("precious\n")
+        with pytest.raises(FileExistsError, match="already exists"):
+            hbjax.save_model(name, M)
+        assert user.read_text() == "precious\n"
+        hbjax.save_model(name, M, overwrite=True)
+        assert type(hbjax.load_model(user)) is hbjax.Hammerstein
+    hbjax.save_model("/proc/self/cwd/new.json", M)
+    assert type(hbjax.load_model(tmp_path / "new.json")) is hbjax.Hammerstein
+
+
 def test_no_hard_links_falls_back_without_clobbering(tmp_path, monkeypatch):
     target = tmp_path / "r.csv"
 
@@ -186,6 +217,34 @@ def test_hostile_model_files_give_model_file_errors(tmp_path, edit, match):
     p = tmp_path / "bad.json"
     p.write_text(edit(text))
     with pytest.raises(hbjax.ModelFileError, match=match):
+        hbjax.load_model(p)
+
+
+SCALAR = {"array": [5.0], "dtype": "float64", "shape": [], "kind": "jax"}
+
+
+@pytest.mark.parametrize(
+    "effect, field, value, match",
+    [
+        ("output_saturation", "upper", "abc", r"OutputSaturation\.upper` must be a numeric"),
+        ("output_saturation", "upper", {"float": "nan"}, r"upper` must be finite"),
+        ("output_saturation", "upper", {"array": [1.0, 2.0, 3.0], "dtype": "float64",
+                                        "shape": [3]}, r"upper` must be a scalar"),
+        ("output_saturation", "upper", True, r"upper` must be numeric"),
+        ("output_saturation", "lower", SCALAR, r"lower` \(5\.0\) must be below"),
+        ("extra_delay", "delay", 2.5, r"ExtraDelay\.delay` must be an integer"),
+        ("extra_delay", "delay", 99, r"ExtraDelay\.delay` must be in \[0, 12\]"),
+    ],
+)
+def test_effect_files_with_invalid_parameters_give_model_file_errors(
+        tmp_path, effect, field, value, match):
+    cls = hbjax.EFFECTS[effect]
+    model = cls(M, None, 3.0) if effect == "output_saturation" else cls(M, 2)
+    doc = json.loads(hbjax.save_model(tmp_path / "e.json", model).read_text())
+    doc["model"]["fields"][field] = value
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(doc))
+    with pytest.raises(hbjax.ModelFileError, match=rf"`model` \({cls.__name__}\).*{match}"):
         hbjax.load_model(p)
 
 

@@ -58,6 +58,54 @@ def test_recording_validates_and_is_read_only():
     assert len(rec.slice(1)) == 2 and rec.slice(1).v[0] == 2.0
 
 
+def test_recording_refuses_empty_records_and_bad_time_origins(tmp_path):
+    # An empty record was accepted and written, but its file could not be read back.
+    with pytest.raises(ValueError, match="`v` is empty"):
+        hbjax.Recording(np.array([]), np.array([]))
+    with pytest.raises(ValueError, match="`y` is empty"):
+        hbjax.Recording([1.0], np.array([]))
+    rec = hbjax.Recording(np.arange(5.0), np.arange(5.0))
+    for start, stop in ((5, 2), (3, 3), (7, None), (None, -5)):
+        with pytest.raises(ValueError, match=f"`start`={start!r}, `stop`={stop!r} keep no"):
+            rec.slice(start, stop)
+    assert len(rec.slice(-1)) == 1 and len(rec.slice(None, 99)) == 5
+    for t0 in (np.nan, np.inf, -np.inf, 10**400):
+        with pytest.raises(ValueError, match="`t0` must be a finite real number"):
+            hbjax.Recording([1.0], [1.0], dt=1.0, t0=t0)
+    for t0 in ("0", None, True, [0.0]):
+        with pytest.raises(TypeError, match="`t0` must be a finite real number"):
+            hbjax.Recording([1.0], [1.0], t0=t0)
+    assert hbjax.Recording([1.0], [1.0], t0=np.int64(3)).t0 == 3.0
+    # A NaN time origin in a file is refused by name too.
+    np.savez(tmp_path / "r.npz", v=[1.0], y=[2.0], t0=np.float64(np.nan))
+    with pytest.raises(ValueError, match="r.npz: `t0` must be a finite"):
+        hbjax.load_recording(tmp_path / "r.npz")
+
+
+def test_a_dt_the_file_contradicts_is_refused(tmp_path):
+    p = write(tmp_path, "r.csv", "t,v,y\n" + "".join(f"{k},{k},{k}\n" for k in range(10)))
+    with pytest.raises(ValueError, match=r"r.csv: `dt`=5.0 conflicts with the step of the "
+                                         r"time column 't' \(1\); give only one"):
+        hbjax.load_recording(p, time="t", dt=5)
+    assert hbjax.load_recording(p, time="t", dt=1).dt == 1.0
+    assert hbjax.load_recording(p, time="t", dt=1.0005).dt == 1.0005  # within 0.1 %
+    assert hbjax.load_recording(p, dt=5).dt == 5.0  # no time column named: nothing to contradict
+    with pytest.raises(TypeError, match="`dt` must be a positive float"):
+        hbjax.load_recording(p, time="t", dt="1")
+    # The file's own dt (save_recording's comment line, an NPZ entry) is contradicted alike.
+    for suffix in ("csv", "npz"):
+        saved = hbjax.save_recording(tmp_path / f"s.{suffix}",
+                                     hbjax.Recording([1.0, 2.0], [3.0, 4.0], dt=0.5))
+        with pytest.raises(ValueError, match="conflicts with the file's own dt \\(0.5\\)"):
+            hbjax.load_recording(saved, dt=5)
+        assert hbjax.load_recording(saved, dt=0.5).dt == 0.5
+    pd = pytest.importorskip("pandas")
+    df = pd.DataFrame({"t": np.arange(10.0), "v": np.arange(10.0), "y": np.arange(10.0)})
+    with pytest.raises(ValueError, match="`dt`=5.0 conflicts with the step of the time column"):
+        hbjax.Recording.from_dataframe(df, input="v", output="y", time="t", dt=5)
+    assert hbjax.Recording.from_dataframe(df, input="v", output="y", time="t", dt=1).dt == 1.0
+
+
 # ----------------------------------------------------------------------------- CSV
 
 

@@ -206,6 +206,19 @@ def test_table_and_plot(small_study):
     fig = plot_monte_carlo(small_study, params=["a1", "c2_0"])
     assert len(fig.axes) == 3
     plt.close(fig)
+    # arguments checked before anything is drawn, each named with what it must be
+    open_figures = plt.get_fignums()
+    for kw, exc, match in [
+        (dict(params=["a9"]), ValueError, r"`params` names \['a9'\], not parameters"),
+        (dict(params="a1"), TypeError, "`params` must be None or a non-empty list"),
+        (dict(length_index=2), ValueError, "`length_index` must index one of the study's 2"),
+        (dict(length_index=0.5), TypeError, "`length_index` must be an integer"),
+        (dict(bins=0), ValueError, "`bins` must be an integer >= 1"),
+        (dict(fig="f"), TypeError, "`fig` must be None or a matplotlib Figure"),
+    ]:
+        with pytest.raises(exc, match=match):
+            plot_monte_carlo(small_study, **kw)
+    assert plt.get_fignums() == open_figures
 
 
 @pytest.mark.parametrize(

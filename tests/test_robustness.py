@@ -92,6 +92,14 @@ def model_file(tmp) -> pathlib.Path:
     return p
 
 
+def _an_axes():
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    plt.close(fig)
+    return ax
+
+
 def text_file(tmp, name, text) -> pathlib.Path:
     p = tmp / name
     p.write_text(text)
@@ -156,6 +164,7 @@ FILES = "files: missing, corrupted, existing, bad folder"
 HOSTILE = "files: hostile or loose content (huge numbers, deep nesting, 1_000, degree cap)"
 OUTPUTS = "outputs: special files, '-', clashes, checked before any work"
 CLI = "command line"
+RANGE = "interval or window out of order or beyond the record; sampling period <= 0"
 
 # --- wrong types
 bad(WRONG_TYPE, "simulate", TypeError, "`model` must be an hbjax.AbstractModel", lambda t: hbjax.simulate(BL, V))
@@ -253,6 +262,7 @@ bad(ORDER, "GiriDesign", TypeError, "`n` must be an integer, got 2.0", lambda t:
 bad(ORDER, "GiriDesign", TypeError, "`n` must be an integer, got True", lambda t: hbjax.GiriDesign(True, 3, 4.0))
 bad(ORDER, "GiriDesign", TypeError, "`m` must be an integer, got '3'", lambda t: hbjax.GiriDesign(2, "3", 4.0))
 bad(ORDER, "GiriDesign", ValueError, "`m` must be an integer >= 1, got 0", lambda t: hbjax.GiriDesign(2, 0, 4.0))
+bad(ORDER, "GiriDesign", ValueError, "`m` must be at most 64 .*got 65", lambda t: hbjax.GiriDesign(2, 65, 4.0))
 bad(ORDER, "GiriDesign.constant_input", TypeError, "`T` must be an integer, got 1.5", lambda t: D.constant_input(1.5))
 bad(ORDER, "GiriDesign.binary_input", ValueError, "`T` must be an integer >= 8, got -1", lambda t: D.binary_input(-1))
 bad(ORDER, "GiriDesign.staircase_input", TypeError, "`T` must be an integer, got None", lambda t: D.staircase_input(None))
@@ -279,6 +289,9 @@ bad(V2, "identify_giri", ValueError, "`v2` must take values in \\{-h_m, \\+h_m\\
 bad(V2, "identify_giri", ValueError, "`v2` is not the design's signal \\(first difference at sample 0\\)", lambda t: hbjax.identify_giri(D, *records(), v2=-D.binary_input(T_GIRI)))
 bad(V2, "identify_giri", ValueError, "`v3` is not the design's signal", lambda t: hbjax.identify_giri(D, *records(), v3=D.staircase_input(T_GIRI)[::-1]))
 bad(V2, "identify_giri", ValueError, "`v1` is not the design's signal", lambda t: hbjax.identify_giri(D, *records(), v1=np.full(T_GIRI, H_M)))
+# off by 1e-9: beyond the check's tolerance (1e-12 h_m), so the first difference is found
+bad(V2, "identify_giri", ValueError, "`v3` is not the design's signal \\(first difference at sample 0\\)", lambda t: hbjax.identify_giri(D, *records(), v3=D.staircase_input(T_GIRI) + 1e-9))
+bad(V2, "identify_giri", ValueError, "`v1` is not the design's signal \\(first difference at sample 0\\)", lambda t: hbjax.identify_giri(D, *records(), v1=D.constant_input(T_GIRI) + 1e-9))
 
 # --- records shorter than one period
 bad(SHORT, "identify_giri", ValueError, "`y2` has 7 samples; it must cover at least one period 4n", lambda t: hbjax.identify_giri(D, records()[0], records()[1][:7], records()[2]))
@@ -322,6 +335,8 @@ bad(WRONG_TYPE, "monte_carlo", TypeError, "`noise_std` must be a real number", l
 bad(OPTION, "monte_carlo", ValueError, "`estimator` must be 'giri', 'refined' or a callable", lambda t: mc(estimator="mle"))
 bad(OPTION, "monte_carlo", ValueError, "`noise` must be 'equation', 'output' or a callable", lambda t: mc(noise="pink"))
 bad(WRONG_TYPE, "monte_carlo", TypeError, "`devices` must be None or a non-empty sequence", lambda t: mc(devices=["cpu"]))
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`devices` must be None or a non-empty sequence of jax.Device, got int", lambda t: mc(devices=0))
+bad(EMPTY, "monte_carlo", ValueError, "`devices` must be None or a non-empty sequence of jax.Device, got an empty", lambda t: mc(devices=[]))
 bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got int", lambda t: mc(key=0))
 bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got NoneType", lambda t: mc(key=None))
 bad(KEY, "monte_carlo", TypeError, "`key` must be a single JAX PRNG key.*got Generator", lambda t: mc(key=np.random.default_rng(0)))
@@ -387,6 +402,7 @@ bad(ORDER, "fit", TypeError, "`m` must be an integer, got 2.0", lambda t: fit(m=
 bad(ORDER, "fit", ValueError, "`starts` must be an integer >= 1, got 0", lambda t: fit(starts=0))
 bad(ORDER, "refine", ValueError, "`max_steps` must be an integer >= 1, got 0", lambda t: hbjax.refine(MN, REC, max_steps=0))
 bad(ORDER, "refine", TypeError, "`max_steps` must be an integer, got 2.5", lambda t: hbjax.refine(MN, REC, max_steps=2.5))
+bad(ORDER, "refine", ValueError, "`restarts` must be an integer >= 0, got -1", lambda t: hbjax.refine(MN, REC, restarts=-1))
 bad(ORDER, "refine", ValueError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol=-1.0))
 bad(H_M_BAD, "refine", ValueError, "`h_m` must be a finite number > 0, got 0", lambda t: hbjax.refine(MN, REC, h_m=0))
 bad(H_M_BAD, "crlb", ValueError, "`h_m` must be a finite number > 0, got -1", lambda t: hbjax.crlb(MN, REC, noise_std=0.1, h_m=-1))
@@ -424,8 +440,10 @@ bad(NONFINITE, "diagnose", ValueError, "`y` contains NaN or inf \\(1 samples, fi
 bad(NONFINITE, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got nan", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=np.nan))
 bad(DTYPE, "diagnose", TypeError, "`v` must be real", lambda t: hbjax.diagnose(M, V_D + 0j, Y_D))
 bad(ORDER, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got 1.5", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=1.5))
-bad(ORDER, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got True", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=True))
+bad(ORDER, "diagnose", TypeError, "`holdout` must be a fraction in \\(0, 1\\), got True", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=True))
 bad(SHORT, "diagnose", ValueError, "record too short for `holdout`=0.3: 100 samples give 70 to fit", lambda t: hbjax.diagnose(M, V_D[:100], Y_D[:100]))
+# a NumPy float is a fraction like any other: refused here for the short record only
+bad(SHORT, "diagnose", ValueError, "record too short for `holdout`=0.3\\d*: 100 samples", lambda t: hbjax.diagnose(M, V_D[:100], Y_D[:100], holdout=np.float32(0.3)))
 bad(OPTION, "diagnose", ValueError, "unknown effect name\\(s\\) in `effects`: \\['friction'\\]", lambda t: hbjax.diagnose(M, V_D, Y_D, effects=["friction"]))
 bad(KEY, "diagnose", TypeError, "`key` must be a single JAX PRNG key .* or None, got int 0", lambda t: hbjax.diagnose(M, V_D, Y_D, key=0))
 bad(UNSTABLE_A, "diagnose", ValueError, "unstable", lambda t: hbjax.diagnose(UNSTABLE, V_D, Y_D, effects=["parameter_mismatch"]))
@@ -438,6 +456,44 @@ bad(ORDER, "concealed_recording", TypeError, "`n` must be an integer, got 2.5", 
 bad(ORDER, "concealed_recording", ValueError, "`system` must be an index 0..2, got True", lambda t: hbjax.concealed_recording(None, system=True))
 bad(NONFINITE, "concealed_recording", ValueError, "`noise` must be a finite number >= 0", lambda t: hbjax.concealed_recording(None, noise=-1.0))
 bad(KEY, "concealed_recording", TypeError, "`key` must be a single JAX PRNG key .* or None, got int", lambda t: hbjax.concealed_recording(None, key=0))
+
+# --- fit_percent
+FIT_Y = np.sin(np.arange(10.0))
+bad(WRONG_TYPE, "fit_percent", TypeError, "`y` must be a numeric array, got str", lambda t: hbjax.fit_percent("y", FIT_Y))
+bad(RANK, "fit_percent", ValueError, "`y` must be a 1-D array, got shape \\(10, 2\\)", lambda t: hbjax.fit_percent(np.stack([FIT_Y, FIT_Y], 1), np.ones((10, 2))))
+bad(LENGTH, "fit_percent", ValueError, "`y` has 10, `y_hat` has 5 samples", lambda t: hbjax.fit_percent(FIT_Y, FIT_Y[:5]))
+bad(LENGTH, "fit_percent", ValueError, "`y` has 10, `y_hat` has 1 samples", lambda t: hbjax.fit_percent(np.arange(10.0), [4.5]))  # no broadcasting
+bad(EMPTY, "fit_percent", ValueError, "`y` must hold at least one sample", lambda t: hbjax.fit_percent([], []))
+bad(NONFINITE, "fit_percent", ValueError, "`y` contains NaN or inf", lambda t: hbjax.fit_percent(np.full(10, np.nan), FIT_Y))
+bad(NONFINITE, "fit_percent", ValueError, "`y_hat` contains NaN or inf", lambda t: hbjax.fit_percent(FIT_Y, with_nan(FIT_Y)))
+bad(IDENT, "fit_percent", ValueError, "`y` is constant: the fit percent is undefined for an output with no spread", lambda t: hbjax.fit_percent(np.ones(10), np.zeros(10)))
+bad(IDENT, "fit_percent", ValueError, "`y` is constant", lambda t: hbjax.fit_percent(np.full(10, 5.0), np.full(10, 5.001)))
+
+# --- figures (hbjax.plot): every argument checked on entry, before anything is drawn
+REC_P = hbjax.Recording(V, Y, channels={"f": Y})
+bad(WRONG_TYPE, "plot_backlash", TypeError, "`backlash` must be an hbjax.Backlash, got Hammerstein \\(pass the model's `.backlash`\\)", lambda t: hbjax.plot.plot_backlash(M, (-5, 5)))
+bad(WRONG_TYPE, "plot_backlash", TypeError, "`v_range` must be a pair \\(lo, hi\\) of real numbers, got 5", lambda t: hbjax.plot.plot_backlash(BL, 5))
+bad(WRONG_TYPE, "plot_backlash", TypeError, "`ax` must be None or a matplotlib Axes, got str", lambda t: hbjax.plot.plot_backlash(BL, (-5, 5), ax="x"))
+bad(RANGE, "plot_backlash", ValueError, "`v_range` must be \\(lo, hi\\) with finite lo < hi, got \\(5, -5\\)", lambda t: hbjax.plot.plot_backlash(BL, (5, -5)))
+bad(WRONG_TYPE, "plot_staircase", TypeError, "`design` must be an hbjax.GiriDesign, got NoneType", lambda t: hbjax.plot.plot_staircase(None, BL))
+bad(WRONG_TYPE, "plot_staircase", TypeError, "`backlash` must be an hbjax.Backlash, got Hammerstein", lambda t: hbjax.plot.plot_staircase(D, M))
+bad(ORDER, "plot_staircase", ValueError, "`periods` must be an integer >= 1, got 0", lambda t: hbjax.plot.plot_staircase(D, BL, periods=0))
+bad(WRONG_TYPE, "plot_recording", TypeError, "`rec` must be an hbjax.Recording, got tuple", lambda t: hbjax.plot.plot_recording((V, Y)))
+bad(OPTION, "plot_recording", ValueError, "`channels` names \\['g'\\] not in the recording; its channels: \\['f'\\]", lambda t: hbjax.plot.plot_recording(REC_P, channels=["g"]))
+bad(WRONG_TYPE, "plot_recording", TypeError, "`channels` must be True, False, None or a list of channel names, got 'f'", lambda t: hbjax.plot.plot_recording(REC_P, channels="f"))
+bad(LENGTH, "plot_recording", ValueError, "`axes` must be None or a sequence of 3 matplotlib Axes, got 0 Axes", lambda t: hbjax.plot.plot_recording(REC_P, axes=[]))
+bad(WRONG_TYPE, "plot_monte_carlo", TypeError, "`study` must be an hbjax.Study, got str", lambda t: hbjax.plot.plot_monte_carlo("x"))
+bad(WRONG_TYPE, "plot_diagnosis", TypeError, "`d` must be an hbjax.Diagnosis, got str", lambda t: hbjax.plot.plot_diagnosis("x"))
+bad(WRONG_TYPE, "plot_output", TypeError, "`y_measured` must be a numeric array, got NoneType", lambda t: hbjax.plot.plot_output(None, Y))
+bad(LENGTH, "plot_output", ValueError, "`y_measured` has 10, `y_simulated` has 5 samples", lambda t: hbjax.plot.plot_output(np.ones(10), np.ones(5)))
+bad(RANK, "plot_output", ValueError, "`y_measured` must be a 1-D array, got shape \\(10, 2\\)", lambda t: hbjax.plot.plot_output(np.ones((10, 2)), np.ones((10, 2))))
+bad(EMPTY, "plot_output", ValueError, "`y_measured` must hold at least one sample", lambda t: hbjax.plot.plot_output([], []))
+bad(RANGE, "plot_output", ValueError, "`window` must satisfy 0 <= start < stop <= 10 .*got \\(8, 2\\)", lambda t: hbjax.plot.plot_output(np.ones(10), np.ones(10), window=(8, 2)))
+bad(RANGE, "plot_output", ValueError, "`window` must satisfy 0 <= start < stop <= 10 .*got \\(0, 100\\)", lambda t: hbjax.plot.plot_output(np.ones(10), np.ones(10), window=(0, 100)))
+bad(WRONG_TYPE, "plot_output", TypeError, "`window` must be None or a pair \\(start, stop\\) of sample indices", lambda t: hbjax.plot.plot_output(np.ones(10), np.ones(10), window=5))
+bad(RANGE, "plot_output", ValueError, "`dt` must be a finite number > 0, got -1", lambda t: hbjax.plot.plot_output(np.ones(10), np.ones(10), dt=-1))
+bad(RANGE, "plot_compare", ValueError, "`window` must satisfy 0 <= start < stop <= 60", lambda t: hbjax.plot.plot_compare(M, V, Y, window=(0, 100)))
+bad(LENGTH, "plot_resid", ValueError, "`axes` must be None or a sequence of 2 matplotlib Axes, got 1 Axes", lambda t: hbjax.plot.plot_resid(M, V, Y, axes=[_an_axes()]))
 
 # --- bundled data sets
 bad(OPTION, "datasets.brfd", ValueError, "unknown BRFD record `name` 'nope'; valid names: .*1Hz30lbtension1amplitude", lambda t: hbjax.datasets.brfd("nope"))
@@ -644,6 +700,39 @@ def test_check_model_accepts_increasing_and_decreasing_backlash():
     D.check_model(M, assumptions=True)
     decreasing = model_with(c1=[1.0, -0.9, 0.0], c2=[-1.0, -0.9, 0.0])
     D.check_model(decreasing, assumptions=True)
+
+
+# Every bool flag of the public API: "no" or "false" is truthy, 0/1 a likely slip. Refused
+# at the entry, before any work (the estimators below would otherwise run for seconds).
+FLAGS = {
+    "save_model.overwrite": lambda t, x: hbjax.save_model(t / "m.json", M, overwrite=x),
+    "save_recording.overwrite": lambda t, x: hbjax.save_recording(
+        t / "r.csv", hbjax.Recording(V, Y), overwrite=x),
+    "identify_giri.throw": lambda t, x: hbjax.identify_giri(D, *records(), throw=x),
+    "refine.throw": lambda t, x: hbjax.refine(MN, REC, throw=x),
+    "separable_ls.throw": lambda t, x: hbjax.separable_ls(MN, REC, h_m=H_M, throw=x),
+    "fit.throw": lambda t, x: fit(throw=x),
+    "monte_carlo.keep_estimates": lambda t, x: mc(keep_estimates=x),
+    "GiriDesign.check_model.assumptions": lambda t, x: D.check_model(M, assumptions=x),
+    "plot.plot_backlash.sweep": lambda t, x: hbjax.plot.plot_backlash(BL, (-5, 5), sweep=x),
+}
+
+
+@pytest.mark.parametrize("value", ["no", "false", 0, None])
+@pytest.mark.parametrize("flag", list(FLAGS))
+def test_flags_must_be_bools(flag, value, tmp_path):
+    if flag.startswith("plot."):
+        pytest.importorskip("matplotlib").use("Agg")
+        import hbjax.plot  # noqa: F401
+    with pytest.raises(TypeError, match=f"`{flag.rsplit('.', 1)[1]}` must be True or False"):
+        FLAGS[flag](tmp_path, value)
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_numpy_bools_are_flags(tmp_path):
+    hbjax.save_model(tmp_path / "m.json", M, overwrite=np.bool_(False))
+    hbjax.save_model(tmp_path / "m.json", M, overwrite=np.True_)
+    D.check_model(M, assumptions=np.True_)
 
 
 # ----------------------------------------------------------------------------- failure isolation

@@ -132,6 +132,22 @@ def test_compare_fit_horizons_rows(system):
     assert "fit %" in est.summary() and "model 0" in repr(est)
 
 
+def test_fit_percent_takes_array_likes_of_any_scale():
+    y = [0.0, 1.0, 3.0, 2.0]
+    y_hat = [0.5, 1.0, 2.5, 2.0]
+    want = 100 * (1 - np.linalg.norm(np.subtract(y, y_hat)) / np.linalg.norm(y - np.mean(y)))
+    assert hbjax.fit_percent(y, y_hat) == pytest.approx(want, rel=1e-14)
+    assert hbjax.fit_percent(jnp.asarray(y), tuple(y_hat)) == pytest.approx(want, rel=1e-14)
+    # the same fit in any units: no overflow of the norms at 1e200, no underflow at 1e-200
+    for scale in (1e200, 1e-200):
+        assert hbjax.fit_percent(np.multiply(y, scale), np.multiply(y_hat, scale)) == \
+            pytest.approx(want, rel=1e-12)
+    # a constant output has no spread to compare the error with, whatever its level
+    for level in (0.0, 1.0, 5.0, -1e30):
+        with pytest.raises(ValueError, match="undefined for an output with no spread"):
+            hbjax.fit_percent(np.full(8, level), np.full(8, level + 1e-3))
+
+
 def test_compare_recording_and_figures(system, tmp_path):
     import matplotlib
 

@@ -8,7 +8,7 @@ never pays for another's imports and the numerical core never imports matplotlib
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
-    run_demo(args.out, force=args.force, n_samples=args.samples, seed=args.seed)
+    run_demo(args.out, force=args.force, n_samples=args.n_samples, seed=args.seed)
     return 0
 
 
@@ -40,6 +40,32 @@ def _read_column(path, key, role):
         v_col, y_col = table.default_columns()
         key = 0 if table.n_columns == 1 else (v_col if role == "input" else y_col)
     return table.column(table.index(_column_key(key), role))
+
+
+def _read_giri_record(path, args):
+    """The output ``y`` of one of ``identify giri``'s records and its recorded input ``v``
+    (``None`` when the file has no input column), with a label of that column for messages.
+
+    Columns: ``--output``, by default the only column or ``y`` by name in the layout hbjax
+    writes, else the second; ``--input``, by default ``v`` by name, else the first column of
+    a file with two or more."""
+    from .._io.files import check_readable
+    from .._io.csvtable import read_csv_table
+
+    table = read_csv_table(check_readable(path, "output file"))
+    v_col, y_col = table.default_columns()
+    one = table.n_columns == 1
+    j_y = table.index(_column_key(args.output), "output") if args.output is not None else (
+        0 if one else y_col)
+    j_v = table.index(_column_key(args.input), "input") if args.input is not None else (
+        None if one else v_col)
+    if j_v == j_y:
+        if args.input is not None:
+            raise ValueError(f"{path}: --input and --output name the same column "
+                             f"({table.column_label(j_y)}).")
+        j_v = None  # --output took the default input column: the file records no input
+    v = None if j_v is None else table.column(j_v)
+    return v, table.column(j_y), None if j_v is None else table.column_label(j_v)
 
 
 FIGURE_HINT = "(.png, .pdf, .svg, ...)"
@@ -114,6 +140,8 @@ def _parse_design(text: str):
         name, sep, value = item.partition("=")
         if not sep:
             raise ValueError(f"--design must look like n=2,m=3,h_m=4, got {text!r}.")
+        if name.strip() in parts:  # never let a later value silently win
+            raise ValueError(f"--design gives {name.strip()!r} twice, in {text!r}.")
         parts[name.strip()] = value.strip()
     if set(parts) != {"n", "m", "h_m"}:
         raise ValueError(f"--design needs exactly n, m and h_m (e.g. n=2,m=3,h_m=4), got {text!r}.")
@@ -205,8 +233,19 @@ def cmd_identify_giri(args) -> int:
 
     design = _parse_design(args.design)
     _check_outputs(args, {"--out": args.out}, inputs=args.records)
-    ys = [_read_column(path, args.output, "output") for path in args.records]
-    result = identify_giri(design, *ys, transient=args.transient)
+    records = [_read_giri_record(path, args) for path in args.records]
+    ys = [y for _, y, _ in records]
+    inputs = {f"v{k}": v for k, (v, _, _) in enumerate(records, 1)}
+    try:  # the recorded inputs are checked against --design
+        result = identify_giri(design, *ys, **inputs, transient=args.transient)
+    except ValueError as exc:
+        message = str(exc)
+        for k, (path, (_, _, label)) in enumerate(zip(args.records, records), 1):
+            message = message.replace(f"`v{k}`", f"`v{k}` ({label} of {path})")
+        if message == str(exc):
+            raise
+        raise ValueError(f"{message} Was it recorded with another --design, or are the files "
+                         "out of order?") from None
     save_model(args.out, result.model, overwrite=args.force)
     print(f"identified the normalised model (paper section 4.1), design {args.design}:")
     print(_describe_model(result.model))

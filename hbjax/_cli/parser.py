@@ -104,7 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--out", default="demo_output", help="folder for the figures and table")
     _force(demo, "overwrite files in --out")
-    demo.add_argument("--samples", type=int, default=10_000, help="samples per experiment")
+    demo.add_argument("--samples", dest="n_samples", type=int, default=10_000,
+                      help="samples per experiment, at least one period of v3 (default 10000)")
     _seed(demo)
     demo.set_defaults(func=commands.cmd_demo)
 
@@ -154,13 +155,18 @@ def build_parser() -> argparse.ArgumentParser:
         description="Identify the normalised HB-Hammerstein model (paper section 4) from the "
         "outputs y1, y2, y3 of the experiments v1 (eq. 14), v2 (eq. 27), v3 (eq. 32).\n\n"
         "Each record is a CSV file; its output column is --output, by default the second "
-        "column (or the only one).",
+        "column (or the only one). A file with two or more columns records its input too: "
+        "--input, by default the first column (`v` and `y` by name in the files `hbjax "
+        "simulate` writes), which must be the design's signal.",
         example="hbjax identify giri --design n=2,m=3,h_m=4 y1.csv y2.csv y3.csv --out model.json",
     )
     _design(giri)
     giri.add_argument("records", nargs=3, metavar="Yk.csv",
                       help="three CSV files: outputs of v1, v2, v3 (in this order)")
     giri.add_argument("--output", default=None, help="output column (header name or index)")
+    giri.add_argument("--input", default=None,
+                      help="recorded input column, checked against --design (header name or "
+                      "index; default: the first of two or more columns)")
     giri.add_argument("--transient", type=int, default=None,
                       help="samples of y1 to discard (default: settling time of A)")
     giri.add_argument("--out", required=True, help="model file to write (JSON)")

@@ -4,13 +4,15 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._misc import positive_float, positive_int
+from .._misc import check_bool, positive_float, positive_int
+from .backlash import MAX_COEFFICIENTS
 from .params import gauge_factor
 
 
 class GiriDesign(eqx.Module):
     """The experiment design of the paper: linear order ``n``, branch size ``m``
-    (degree ``m-1``) and the amplitude ``h_m`` of assumption A4.
+    (degree ``m-1``; at most 64, a backlash branch's cap) and the amplitude ``h_m`` of
+    assumption A4.
 
     ``h_m`` must exceed the zeros of both branches (A4) so that ``v = +h_m`` puts the
     output on ``P1`` and ``v = -h_m`` on ``P2``.
@@ -23,6 +25,12 @@ class GiriDesign(eqx.Module):
     def __init__(self, n, m, h_m):
         self.n = positive_int(n, "n")
         self.m = positive_int(m, "m")
+        # refused here, not by identify_giri once the experiments have been run
+        if self.m > MAX_COEFFICIENTS:
+            raise ValueError(
+                f"`m` must be at most {MAX_COEFFICIENTS} (a backlash branch's coefficient cap, "
+                f"degree {MAX_COEFFICIENTS - 1}), got {self.m}."
+            )
         self.h_m = positive_float(h_m, "h_m")
 
     @property
@@ -63,7 +71,7 @@ class GiriDesign(eqx.Module):
                 f"`{name}` has orders na={na}, nb={nb}, m={m} but the design expects "
                 f"na = nb = n = {self.n} and m = {self.m}."
             )
-        if assumptions:
+        if check_bool(assumptions, "assumptions"):
             self._check_assumptions(model, name)
 
     def _check_assumptions(self, model, name: str) -> None:

@@ -166,8 +166,9 @@ def fit_missing_input(model: Hammerstein, y, y_nom, channels: dict, n_fit: int, 
     beta0, sse0 = _lstsq(X0, y - y_nom, a, window, criterion)
     y_ref = y_nom + X0 @ beta0
     yh = y[n_fit:]
-    fit_nom = rt.fit_percent(yh, y_nom[n_fit:])
-    ref = {"bic": bic(sse0, 2), "k": 2, "fit_sim": rt.fit_percent(yh, y_ref[n_fit:])}
+    fit_nom = rt.fit_percent_unchecked(yh, y_nom[n_fit:])
+    ref = {"bic": bic(sse0, 2), "k": 2,
+           "fit_sim": rt.fit_percent_unchecked(yh, y_ref[n_fit:])}
     table, best = {}, None
     for subset in subsets:
         W = np.stack([usable[s] for s in subset], axis=1)
@@ -177,9 +178,9 @@ def fit_missing_input(model: Hammerstein, y, y_nom, channels: dict, n_fit: int, 
             X = _design(y_nom, w, a, variant)
             beta, sse = _lstsq(X, y - y_nom, a, window, criterion)
             y_ext = y_nom + X @ beta
-            st = {"bic": bic(sse, X.shape[1], G), "k": X.shape[1],
-                  "fit_sim": rt.fit_percent(yh, y_ext[n_fit:]) if np.all(np.isfinite(y_ext))
-                  else -np.inf}
+            fit = (rt.fit_percent_unchecked(yh, y_ext[n_fit:]) if np.all(np.isfinite(y_ext))
+                   else -np.inf)
+            st = {"bic": bic(sse, X.shape[1], G), "k": X.shape[1], "fit_sim": fit}
             table[f"missing_input ({', '.join(subset)}; {variant})"] = st
             if best is None or st["bic"] < best["stats"]["bic"]:
                 best = dict(stats=st, subset=subset, variant=variant, beta=beta, y_ext=y_ext,

@@ -31,7 +31,7 @@ import numpy as np
 from .._core import display
 from .._core.arx import ARX, all_pole, equation_error
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
-from .._misc import lag_sum
+from .._misc import as_float_array, is_traced, lag_sum, positive_int
 from .kernel import Layout, iir_fft, play_gather
 
 
@@ -114,6 +114,81 @@ def base_model(lay: Layout, theta) -> Hammerstein:
     return lay.model(jnp.asarray(theta))
 
 
+@dataclasses.dataclass(frozen=True)
+class Constraint:
+    """What one parameter field of an effect must hold: declared in the class's
+    ``constraints`` (field -> constraint) and checked by
+    :meth:`AbstractEffect.__check_init__`, so both the constructor and
+    :func:`hbjax.load_model` (which runs ``__check_init__``) refuse an invalid value with a
+    ``TypeError``/``ValueError`` naming the class and the field.
+
+    - `shape`: the array's shape, ``()`` a scalar; an entry ``"na"``, ``"nb"`` or ``"m"``
+      is the base's order (the length of ``a``, of ``b``, of a backlash branch);
+    - `integer`: a non-negative Python integer (a static count of samples such as a
+      delay) instead of an array;
+    - `finite`: no NaN or inf (default);
+    - `positive`: every value > 0 (a width, a scale it divides by);
+    - `minimum`, `maximum`: inclusive bounds;
+    - `optional`: ``None`` is allowed (a clip side that is open);
+    - `below`: another declared field this one must be strictly below where both are
+      given (a clip's ``lower`` below its ``upper``).
+
+    Traced values (the diagnosis builds effects inside ``jit``, ``vmap`` and ``grad``)
+    have their type and shape checked; their values are unknown at trace time and pass.
+    """
+
+    shape: tuple = ()
+    integer: bool = False
+    finite: bool = True
+    positive: bool = False
+    minimum: float | None = None
+    maximum: float | None = None
+    optional: bool = False
+    below: str | None = None
+
+    def check(self, name: str, value, base: Hammerstein):
+        """The concrete ``value`` of field ``name`` (``"Class.field"``) as a NumPy array,
+        ``None`` where it is absent or traced; raises where it breaks the constraint."""
+        if value is None:
+            if self.optional:
+                return None
+            raise TypeError(f"`{name}` must be given, got None.")
+        if self.integer:
+            if is_traced(value):
+                return None
+            # (a Python integer of any size: compared as one, never converted to float)
+            arr = np.asarray(positive_int(value, name, minimum=0), dtype=object)
+        else:
+            # a boolean converts to 0/1 but is no parameter value (a slip in a file)
+            if isinstance(value, (bool, np.bool_)) or getattr(value, "dtype", None) == bool:
+                raise TypeError(f"`{name}` must be numeric, got a boolean.")
+            # type and shape are known at trace time too (as for the core blocks)
+            arr = as_float_array(value, name, host=True)
+            orders = {"na": base.arx.na, "nb": base.arx.nb, "m": base.backlash.m}
+            shape = tuple(orders.get(s, s) for s in self.shape)
+            if tuple(arr.shape) != shape:
+                what = "be a scalar" if shape == () else f"have shape {shape}"
+                raise ValueError(f"`{name}` must {what}, got shape {tuple(arr.shape)}.")
+            if is_traced(arr):
+                return None
+            arr = np.asarray(arr)
+            if self.finite and not np.all(np.isfinite(arr)):
+                either = " or None" if self.optional else ""
+                raise ValueError(f"`{name}` must be finite{either}, got {_shown(arr)}.")
+        if self.positive and not np.all(arr > 0):
+            raise ValueError(f"`{name}` must be > 0, got {_shown(arr)}.")
+        if self.minimum is not None or self.maximum is not None:
+            lo = (0 if self.integer else -np.inf) if self.minimum is None else self.minimum
+            hi = np.inf if self.maximum is None else self.maximum
+            if not np.all((arr >= lo) & (arr <= hi)):
+                raise ValueError(f"`{name}` must be in [{lo}, {hi}], got {_shown(arr)}.")
+        return arr
+
+
+def _shown(arr) -> str:
+    return str(arr.item()) if arr.ndim == 0 else np.array2string(arr, threshold=8)
+
+
 class AbstractEffect(AbstractModel):
     """One physical mechanism the nominal HB-Hammerstein model (eq. (10)) leaves out, as a
     model: ``base`` (the nominal :class:`hbjax.Hammerstein`) plus the effect's fitted
@@ -130,6 +205,9 @@ class AbstractEffect(AbstractModel):
     - :meth:`output_term` (added to the linear block's output) and/or :meth:`input_term`
       (added to the backlash output before the linear block);
     - :meth:`describe`: the physics sentence built from the fitted values;
+    - optionally `constraints` (``ClassVar[dict[str, Constraint]]``): what each parameter
+      field must hold (shape, finite, positive, bounds, ``None`` allowed, ordered pairs),
+      checked when the effect is built or loaded from a file (:class:`Constraint`);
     - optionally `noise_rival` (``ClassVar[str]``, see below);
     - optionally `anchorable` (``ClassVar[bool]``, default ``True``): the diagnosis also
       fits the effect with the base held at the nominal values (its *anchored* variant,
@@ -172,10 +250,21 @@ class AbstractEffect(AbstractModel):
     anchorable: ClassVar[bool] = True
     anchored_form: ClassVar[type | None] = None
     signature_rivals: ClassVar[tuple[str, ...]] = ()
+    constraints: ClassVar[dict[str, Constraint]] = {}
 
     def __check_init__(self):
         if not isinstance(self.base, Hammerstein):
             raise TypeError(f"`base` must be an hbjax.Hammerstein, got {type(self.base).__name__}.")
+        # The class's declared constraints: one check for every effect (the model-file
+        # reader runs this too, so a loaded file is held to the constructor's rules).
+        cls = type(self).__name__
+        values = {field: rule.check(f"{cls}.{field}", getattr(self, field), self.base)
+                  for field, rule in self.constraints.items()}
+        for field, rule in self.constraints.items():
+            low, high = values[field], values.get(rule.below)
+            if low is not None and high is not None and not np.all(low < high):
+                raise ValueError(f"`{cls}.{field}` ({_shown(low)}) must be below "
+                                 f"`{cls}.{rule.below}` ({_shown(high)}).")
 
     # --- how it enters the model (generic path) ------------------------------------
 

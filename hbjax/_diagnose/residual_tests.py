@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from .._misc import chi2_sf
+from .._misc import as_float_array, check_finite, chi2_sf, same_length
 
 Z99 = 2.5758293035489004  # two-sided 99% normal quantile
 
@@ -158,8 +158,44 @@ def event_sign_test(ref: np.ndarray, new: np.ndarray, changed: np.ndarray,
     return {"events": events, "better": better, "p": float(p)}
 
 
-def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
-    """``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` (MATLAB ``compare``'s NRMSE fit)."""
+def fit_percent(y, y_hat) -> float:
+    """``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` (MATLAB ``compare``'s NRMSE fit).
+
+    **Arguments:**
+
+    - `y`: the measured output, a 1-D array-like of finite samples that is not constant.
+    - `y_hat`: the model's output (simulated or predicted), finite, as long as `y`.
+
+    **Returns:** the fit in percent: 100 for a perfect match, 0 for no better than the mean
+    of `y`, negative for worse. ``ValueError`` for a constant `y` (no spread, up to
+    rounding): the fit is relative to that spread and so undefined.
+    """
+    y = as_float_array(y, "y", ndim=1, host=True)
+    y_hat = as_float_array(y_hat, "y_hat", ndim=1, host=True)
+    if y.shape[0] == 0:
+        raise ValueError("`y` must hold at least one sample, got an empty array.")
+    same_length(y=y, y_hat=y_hat)
+    eps = np.finfo(y.dtype).eps  # the rounding of the data as given (float32 or float64)
+    y = np.asarray(check_finite(y, "y"), float)
+    y_hat = np.asarray(check_finite(y_hat, "y_hat"), float)
+    # The spread is judged on the peak-to-peak range, exact in floating point: the mean
+    # subtracted from a constant record leaves rounding noise that would divide the error.
+    peak = np.max(np.abs(y))
+    if np.ptp(y) <= 4 * eps * peak:
+        raise ValueError(
+            "`y` is constant: the fit percent is undefined for an output with no spread "
+            "(it compares the error with the spread of `y`)."
+        )
+    # Both divided by a power of two near the peak (exact): the norms of finite records
+    # then neither overflow nor underflow whatever the data's units.
+    scale = 2.0 ** -np.frexp(peak)[1]
+    return fit_percent_unchecked(y * scale, y_hat * scale)
+
+
+def fit_percent_unchecked(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """:func:`fit_percent` without its checks, for internal callers on checked NumPy arrays:
+    a non-finite ``y_hat`` (a diverged simulation) gives ``nan``/``-inf`` rather than an
+    error, and a constant ``y`` is compared with its mean's error alone."""
     den = np.linalg.norm(y - y.mean())
     return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / (den or 1.0)))
 

@@ -23,7 +23,7 @@ def residual_signatures(v, y, ysim, eps, u, burn):
         "regime_time": rt.regime_dependence(r, np.arange(len(r), dtype=float)),
         "spectral_peaks": [{"frequency": f, "ratio": q} for f, q in
                            rt.spectral_peaks(e, exclude=rt.periodogram(v[burn:]))],
-        "simulation_fit": rt.fit_percent(y[burn:], ysim[burn:]),
+        "simulation_fit": rt.fit_percent_unchecked(y[burn:], ysim[burn:]),
         "noise_std": float(np.std(e)),
     }
 

@@ -21,7 +21,7 @@ from .._core.backlash import Backlash
 from .._core.cache import ensure_compilation_cache
 from .._core.mappings import release_compiled_programs
 from .._core.progress import check_progress, progress_bar
-from .._misc import check_key, is_traced, positive_int
+from .._misc import check_bool, check_key, is_traced, positive_int
 from .._core.precision import require_x64
 from .criteria import data_scale
 from .fit_starts import (
@@ -293,6 +293,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     ensure_compilation_cache()
     release_compiled_programs()
     check_progress(progress)
+    throw = check_bool(throw, "throw")
     na = positive_int(na, "na", minimum=0)
     nb = positive_int(nb, "nb")
     m = positive_int(m, "m")

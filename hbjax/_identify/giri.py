@@ -17,7 +17,7 @@ from .._core.model import Hammerstein
 from .._core.params import gauge_factor
 from .._core.precision import require_x64
 from .._core.signals import GiriDesign
-from .._misc import as_float_array, check_values, is_traced, lagged
+from .._misc import as_float_array, check_bool, check_values, is_traced, lagged
 from .._results import RESULTS, message, raise_if_failed
 from .giri_band import project_onto_band
 from .linear import arx_regressors, equilibrate, equilibrated_solve
@@ -279,10 +279,17 @@ def _check_input_record(design, v, name, expected):
                 f"`v2` must take values in {{-h_m, +h_m}} = {{{-design.h_m}, {design.h_m}}}; "
                 f"sample {i} is {v[i]}."
             )
-    if v.shape != expected.shape or not np.allclose(v, expected, rtol=0, atol=1e-12 * design.h_m):
-        bad = int(np.flatnonzero(~np.isclose(v[: expected.size], expected[: v.size]))[0]) if v.shape == expected.shape else None
-        where = f" (first difference at sample {bad})" if bad is not None else f" (length {v.shape[0]} vs {expected.shape[0]})"
-        raise ValueError(f"`{name}` is not the design's signal{where}; generate it with GiriDesign.")
+    if v.shape != expected.shape:
+        where = f"length {v.shape[0]} vs {expected.shape[0]}"
+    else:
+        # One tolerance both decides and locates the first offending sample, so a small
+        # offset is reported rather than missed by a looser search.
+        off = np.flatnonzero(~np.isclose(v, expected, rtol=0, atol=1e-12 * design.h_m))
+        where = f"first difference at sample {off[0]}" if off.size else None
+    if where is not None:
+        raise ValueError(
+            f"`{name}` is not the design's signal ({where}); generate it with GiriDesign."
+        )
 
 
 def identify_giri(design: GiriDesign, y1, y2, y3, *, v1=None, v2=None, v3=None,
@@ -311,6 +318,7 @@ def identify_giri(design: GiriDesign, y1, y2, y3, *, v1=None, v2=None, v3=None,
     """
     require_x64("identify_giri")
     ensure_compilation_cache()
+    throw = check_bool(throw, "throw")
     if not isinstance(design, GiriDesign):
         raise TypeError(f"`design` must be an hbjax.GiriDesign, got {type(design).__name__}.")
     y1 = _record(y1, "y1", 4, "a few samples of the v1 step")

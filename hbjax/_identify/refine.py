@@ -19,7 +19,7 @@ from .._core.cache import ensure_compilation_cache
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, gauge_factor, param_names
 from .._core.precision import require_x64
-from .._misc import is_traced, positive_float, positive_int
+from .._misc import check_bool, is_real_scalar, is_traced, positive_float, positive_int
 from .._results import RESULTS, code, raise_if_failed
 from .adequacy import LEVEL
 from .criteria import PREDICTION, lower_is_p1, sample_count
@@ -150,8 +150,7 @@ def check_floor(min_sim_fit):
     """``min_sim_fit``: a finite real number (percent; may be negative) or a traced value."""
     if is_traced(min_sim_fit):
         return min_sim_fit
-    if isinstance(min_sim_fit, bool) or not isinstance(min_sim_fit, (int, float, np.number)) \
-            or not np.isfinite(min_sim_fit):
+    if not is_real_scalar(min_sim_fit) or not np.isfinite(min_sim_fit):
         raise ValueError(f"`min_sim_fit` must be a finite number (percent), got {min_sim_fit!r}.")
     return float(min_sim_fit)
 
@@ -331,7 +330,8 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         check_gauge(model, h_m)
     min_sim_fit = check_floor(min_sim_fit)
     check_initial_state(initial_state)
-    restarts = restarts if restarts == 0 else positive_int(restarts, "restarts")
+    throw = check_bool(throw, "throw")
+    restarts = positive_int(restarts, "restarts", minimum=0)
     options = dict(criterion=criterion, h_m=h_m, max_steps=max_steps,
                    rtol=positive_float(rtol, "rtol"), atol=positive_float(atol, "atol"),
                    min_sim_fit=min_sim_fit, initial_state=initial_state)

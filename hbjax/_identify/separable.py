@@ -10,7 +10,7 @@ import optimistix as optx
 
 from .._core.arx import ARX
 from .._core.backlash import Backlash
-from .._misc import is_traced, positive_float, positive_int
+from .._misc import check_bool, is_traced, positive_float, positive_int
 from .._core.cache import ensure_compilation_cache
 from .._core.precision import require_x64
 from .linear import arx_regressors, equilibrated_solve
@@ -114,6 +114,7 @@ def separable_ls(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 2
     """
     require_x64("separable_ls")
     ensure_compilation_cache()
+    throw = check_bool(throw, "throw")
     check_model(model)
     recs = as_recordings(recordings, model=model)
     h_m = check_h_m(h_m)

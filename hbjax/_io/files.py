@@ -9,8 +9,11 @@ Writing rules (``docs/robustness.md``):
   hard links (vfat, SMB) a new file is created with ``O_EXCL`` instead, which also never
   replaces a file that appeared during the write;
 - character devices and FIFOs (``/dev/null``, ``/dev/stdout``, a named pipe) are written
-  into, never replaced: nothing is destroyed, so no ``overwrite`` is needed. Block devices
-  and sockets are refused, and so is ``-`` (write to ``/dev/stdout`` instead);
+  into, never replaced: nothing is destroyed, so no ``overwrite`` is needed. So is a regular
+  file named by an open file descriptor (``/dev/stdout`` redirected to a file, ``/dev/fd/N``,
+  ``/proc/<pid>/fd/N``), appended to; any other name of a regular file, under ``/proc`` or
+  not, follows the rules above. Block devices and sockets are refused, and so is ``-``
+  (write to ``/dev/stdout`` instead);
 - several outputs of one command are checked together before any work
   (:func:`check_outputs`) and published together (:func:`atomic_write_many`): if one cannot
   be published, the new files already published are removed again.
@@ -21,6 +24,7 @@ from __future__ import annotations
 import errno
 import os
 import pathlib
+import re
 import stat
 import tempfile
 
@@ -52,12 +56,21 @@ def check_readable(path, what: str) -> pathlib.Path:
     return p
 
 
-def _through_proc(p: pathlib.Path) -> bool:
-    """True if ``p`` is, or links through, ``/proc`` or ``/dev/fd`` (``/dev/stdout`` is a link
-    to ``/proc/self/fd/1``): such a name stands for an open file, which is written into."""
+# An entry of a file-descriptor folder: /proc/<pid>/fd/N (also per thread), /dev/fd/N.
+_FD_ENTRY = re.compile(r"/proc/[^/]+(/task/[^/]+)?/fd/[^/]+|/dev/fd/[^/]+")
+
+
+def _names_open_file(p: pathlib.Path) -> bool:
+    """True if ``p`` is, or links through, an entry of a file-descriptor folder
+    (``/dev/stdout`` is a link to ``/proc/self/fd/1``): such a name stands for a file this
+    process holds open, e.g. a redirected standard output, which is written into. Other
+    names under ``/proc`` (``/proc/self/cwd/...``, ``/proc/<pid>/root/...``) reach ordinary
+    files, which are not: they get the no-clobber rules of any other name."""
     path, hops = os.path.abspath(p), 0
     while hops < 40:
-        if path.startswith(("/proc/", "/dev/fd/")):
+        # The folder resolved too: /dev/fd and /proc/self are themselves links.
+        resolved = os.path.join(os.path.realpath(os.path.dirname(path)), os.path.basename(path))
+        if _FD_ENTRY.fullmatch(path) or _FD_ENTRY.fullmatch(resolved):
             return True
         if not os.path.islink(path):
             return False
@@ -68,12 +81,13 @@ def _through_proc(p: pathlib.Path) -> bool:
 
 def _is_special(p: pathlib.Path) -> bool:
     """True for what is written into rather than replaced: an existing character device or
-    FIFO (followed through symbolic links), or an open file named through ``/proc``."""
+    FIFO (followed through symbolic links), or an open file named by its file descriptor."""
     try:
         mode = os.stat(p).st_mode
     except OSError:
         return False
-    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode) or (stat.S_ISREG(mode) and _through_proc(p))
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode) or (
+        stat.S_ISREG(mode) and _names_open_file(p))
 
 
 def check_writable(path, *, overwrite: bool, hint: str = HINT) -> pathlib.Path:
@@ -117,7 +131,7 @@ def _target(p: pathlib.Path) -> pathlib.Path:
 
 
 def _write_into(p: pathlib.Path, payload: bytes) -> None:
-    """Write into an existing device, FIFO or open file named through /proc."""
+    """Write into an existing device, FIFO or open file named by its file descriptor."""
     # Append: a FIFO or device does not care, and a redirected standard output keeps what
     # was printed before.
     with open(p, "ab") as fh:

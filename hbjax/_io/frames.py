@@ -42,6 +42,49 @@ class Trend:
                      self.y_offset + other.y_offset, self.y_slope + other.y_slope)
 
 
+# A Python float: comparing a huge Python int with it is exact, where float() would overflow.
+_MAX = float(np.finfo(np.float64).max)
+
+
+def _real(x) -> bool:
+    # Strings convert with float() and booleans are ints, but neither is a time.
+    return not isinstance(x, (bool, np.bool_)) and isinstance(
+        x, (int, float, np.integer, np.floating))
+
+
+def sampling_period(dt) -> float | None:
+    """``dt`` as a float: a positive finite number, or ``None`` (unknown)."""
+    if dt is None:
+        return None
+    if not _real(dt):
+        raise TypeError(f"`dt` must be a positive float or None, got {dt!r}.")
+    val = float(dt) if abs(dt) <= _MAX else np.inf
+    if not (np.isfinite(val) and val > 0):
+        raise ValueError(f"`dt` must be a positive finite float or None, got {dt!r}.")
+    return val
+
+
+def time_origin(t0) -> float:
+    """``t0`` as a float: a finite real number (seconds, or samples without ``dt``)."""
+    if not _real(t0):
+        raise TypeError(f"`t0` must be a finite real number, got {t0!r}.")
+    val = float(t0) if abs(t0) <= _MAX else np.inf
+    if not np.isfinite(val):
+        raise ValueError(f"`t0` must be a finite real number, got {t0!r}.")
+    return val
+
+
+def check_dt_agrees(dt, step: float, where: str, choose: str) -> float:
+    """``dt`` (checked by :func:`sampling_period`) when it agrees with ``step``, the period
+    the data themselves give (``where``), to 0.1 % (the jitter of times written with few
+    digits). A ``ValueError`` otherwise, saying how to choose: preferring either silently
+    would put every later result on a wrong time axis."""
+    dt = sampling_period(dt)
+    if not abs(dt - step) <= 1e-3 * abs(step):
+        raise ValueError(f"`dt`={dt!r} conflicts with {where} ({step:.12g}); {choose}.")
+    return dt
+
+
 def check_channels(channels, n: int) -> types.MappingProxyType:
     """``name -> 1-D finite float64 array of n samples`` (read-only), from a mapping."""
     if channels is None:
@@ -216,7 +259,8 @@ def from_dataframe(cls, df, *, input, output, channels=None, dt=None, time=None,
       ``new name -> column``, or ``None`` for every remaining numeric column.
     - `dt`: sampling period in seconds. When not given it comes from the `time` column or
       from the frame's index (a numeric, datetime or timedelta index with uniform steps;
-      a plain ``0..N-1`` index gives no ``dt``).
+      a plain ``0..N-1`` index gives no ``dt``). Given, it replaces the index's spacing, but
+      must agree with a `time` column's mean step to 0.1 % (``ValueError`` otherwise).
     """
     pd = _pandas()
     if not isinstance(df, pd.DataFrame):
@@ -237,6 +281,11 @@ def from_dataframe(cls, df, *, input, output, channels=None, dt=None, time=None,
         t0 = float(t[0])
         if dt is None:
             dt = uniform_step(t, f"the {'time column' if ctime is not None else 'index'}")
+        elif ctime is not None:  # (a given dt does replace an index's spacing)
+            dt = check_dt_agrees(dt, (t[-1] - t[0]) / (len(t) - 1),
+                                 f"the step of the time column {time!r}",
+                                 "give only one of them: leave out `dt` to use the times, "
+                                 "or `time` to use `dt`")
     return cls(v=df[cin].to_numpy(np.float64), y=df[cout].to_numpy(np.float64), dt=dt,
                source="DataFrame", name=str(name), channels=cols, t0=t0)
 

@@ -1,6 +1,7 @@
 """Decoding model-file JSON into modules: the class a file names (never importing
 anything), arrays and floats with their dtypes and shapes checked, and the checks of the
-rebuilt modules (degree cap, finite coefficients) before a model is returned."""
+rebuilt modules (degree cap, finite coefficients, every class's ``__check_init__``: for the
+diagnosis's effects their declared parameter constraints) before a model is returned."""
 
 from __future__ import annotations
 
@@ -130,7 +131,8 @@ def _decode_module(obj, extra, where):
     module = object.__new__(cls)
     for name, value in values.items():
         object.__setattr__(module, name, value)
-    # The invariants the constructors would have enforced, most-derived class last.
+    # The invariants the constructors would have enforced, most-derived class last (an
+    # effect's parameter constraints among them: their errors name the class and field).
     for klass in reversed(cls.__mro__):
         check = klass.__dict__.get("__check_init__")
         if check is not None:

@@ -36,6 +36,7 @@ import jax
 import numpy as np
 
 from .._core.model import AbstractModel
+from .._misc import check_bool
 from .files import atomic_write, check_readable
 from .modeldecode import _decode_module
 from .modeltypes import (
@@ -151,6 +152,7 @@ def save_model(path, model: AbstractModel, *, overwrite: bool = False) -> pathli
 
     **Returns:** the path written.
     """
+    overwrite = check_bool(overwrite, "overwrite")
     return atomic_write(path, model_to_json(model), overwrite=overwrite)
 
 

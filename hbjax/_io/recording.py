@@ -17,6 +17,7 @@ import pathlib
 
 import numpy as np
 
+from .._misc import check_bool
 from .files import atomic_write as atomic_write, check_readable
 
 from . import frames as _frames
@@ -40,7 +41,8 @@ class Recording:
     - `t0`: time of the first sample (seconds, or samples when ``dt`` is ``None``).
     - `trend`: what :meth:`detrend` removed (``None`` if nothing).
 
-    The arrays are finite; a record with NaN or inf is refused at construction.
+    The arrays are finite and hold at least one sample, and ``t0`` is a finite number;
+    anything else is refused at construction.
     Like MATLAB's ``iddata``: :meth:`from_dataframe` / :meth:`to_dataframe`, :meth:`split`,
     :meth:`detrend`, :meth:`decimate`, :meth:`plot`; :func:`hbjax.fit`, :func:`hbjax.refine`
     and :func:`hbjax.diagnose` accept a recording wherever they take ``(v, y)``.
@@ -62,20 +64,13 @@ class Recording:
             raise ValueError(
                 f"`v` and `y` must have equal lengths, got {v.shape[0]} and {y.shape[0]} samples."
             )
-        dt = self.dt
-        if dt is not None:
-            if isinstance(dt, bool) or not isinstance(dt, (int, float, np.floating, np.integer)):
-                raise TypeError(f"`dt` must be a positive float or None, got {dt!r}.")
-            dt = float(dt)
-            if not (np.isfinite(dt) and dt > 0):
-                raise ValueError(f"`dt` must be a positive finite float or None, got {dt!r}.")
         object.__setattr__(self, "v", v)
         object.__setattr__(self, "y", y)
-        object.__setattr__(self, "dt", dt)
+        object.__setattr__(self, "dt", _frames.sampling_period(self.dt))
         object.__setattr__(self, "source", str(self.source))
         object.__setattr__(self, "name", str(self.name))
         object.__setattr__(self, "channels", _frames.check_channels(self.channels, v.shape[0]))
-        object.__setattr__(self, "t0", float(self.t0))
+        object.__setattr__(self, "t0", _frames.time_origin(self.t0))
 
     def __len__(self) -> int:
         return int(self.v.shape[0])
@@ -88,9 +83,14 @@ class Recording:
         return self.t0 + (k if self.dt is None else k * self.dt)
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Recording":
-        """The samples ``start:stop`` as a new record (same ``dt``, ``source`` and ``name``;
-        channels sliced alike, times kept)."""
-        return _frames.take(self, slice(start, stop))
+        """The samples ``start:stop`` (Python's slice rules) as a new record (same ``dt``,
+        ``source`` and ``name``; channels sliced alike, times kept). A slice that keeps no
+        sample is refused."""
+        index = slice(start, stop)
+        if len(range(*index.indices(len(self)))) == 0:
+            raise ValueError(f"`start`={start!r}, `stop`={stop!r} keep no sample of a "
+                             f"{len(self)}-sample recording.")
+        return _frames.take(self, index)
 
     @classmethod
     def from_dataframe(cls, df, *, input, output, channels=None, dt=None, time=None,
@@ -145,6 +145,8 @@ def _finite_column(x, name: str) -> np.ndarray:
         raise TypeError(f"`{name}` must be real, got complex dtype {arr.dtype}.")
     if arr.ndim != 1:
         raise ValueError(f"`{name}` must be a 1-D array, got shape {arr.shape}.")
+    if arr.shape[0] == 0:  # would be written, but not read back, and estimate nothing
+        raise ValueError(f"`{name}` is empty; a recording needs at least one sample.")
     arr = np.array(arr, dtype=np.float64, copy=True)
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
@@ -178,7 +180,9 @@ def load_recording(
       ``friction force`` (2).
     - `time`: optional column of sample times; ``dt`` is their (uniform) spacing. Times
       written as ``k * dt`` give back ``dt`` exactly.
-    - `dt`: the sampling period, when the file does not give it.
+    - `dt`: the sampling period, when the file does not give it. A `dt` that disagrees by
+      more than 0.1 % with the file's (the mean step of `time`, or the file's own ``dt``)
+      is refused with a ``ValueError`` naming both, rather than silently preferred.
 
     The file's own sampling period is used when no `time` or `dt` is given: the
     ``# hbjax recording; dt = ...`` comment line of a CSV file written by
@@ -194,6 +198,7 @@ def load_recording(
 
     **Returns:** a :class:`hbjax.Recording` with ``source`` the path and ``name`` its stem.
     """
+    dt = _frames.sampling_period(dt)  # an argument error, before the file is read
     p = check_readable(path, "recording file")
     suffix = p.suffix.lower()
     t0, channels = 0.0, {}
@@ -215,7 +220,7 @@ def load_recording(
             channels = {table.header[j].strip(): table.column(j)
                         for j in range(table.n_columns) if j not in used}
     v, y, t = columns
-    rec_dt = _resolve_dt(p, t, file_dt, dt)
+    rec_dt = _resolve_dt(p, t, file_dt, dt, time)
     if t is not None:
         t0 = float(t[0])
     try:
@@ -225,15 +230,32 @@ def load_recording(
         raise ValueError(f"{p}: {exc}") from None
 
 
-def _resolve_dt(p, t, file_dt, dt):
-    if dt is not None:
-        return dt
-    if t is not None:
-        # The file's own dt when its times are exactly t0 + k * dt (save_recording's layout).
-        if file_dt is not None and np.array_equal(t[0] + np.arange(t.shape[0]) * file_dt, t):
-            return file_dt
-        return _uniform_step(t, p)
-    return file_dt
+def _resolve_dt(p, t, file_dt, dt, time):
+    """The file's sampling period (its time column, else its own ``dt`` entry), or the
+    given `dt` when the file has none; a given `dt` the file contradicts is refused."""
+    if dt is None:
+        if t is not None:
+            # The file's own dt when its times are exactly t0 + k * dt (save_recording's
+            # layout).
+            if file_dt is not None and np.array_equal(
+                    t[0] + np.arange(t.shape[0]) * file_dt, t):
+                return file_dt
+            return _uniform_step(t, p)
+        return file_dt
+    try:
+        if t is not None and t.shape[0] >= 2:
+            return _frames.check_dt_agrees(
+                dt, (float(t[-1]) - float(t[0])) / (t.shape[0] - 1),
+                f"the step of the time column {time!r}",
+                "give only one of them: leave out `dt` to use the times, or `time` to use `dt`")
+        if file_dt is not None:
+            return _frames.check_dt_agrees(
+                dt, file_dt, "the file's own dt",
+                "leave out `dt` to use the file's, or replace it after loading "
+                "(dataclasses.replace(rec, dt=...))")
+    except ValueError as exc:
+        raise ValueError(f"{p}: {exc}") from None
+    return dt
 
 
 def _uniform_step(t: np.ndarray, p) -> float:
@@ -288,6 +310,7 @@ def save_recording(path, recording: Recording, *, overwrite: bool = False) -> pa
     Times that overflow float64 (``dt`` near 1e308) are refused rather than written as
     ``inf``. Atomic, and an existing file is kept unless ``overwrite``.
     """
+    overwrite = check_bool(overwrite, "overwrite")
     if not isinstance(recording, Recording):
         raise TypeError(f"`recording` must be an hbjax.Recording, got {type(recording).__name__}.")
     suffix = pathlib.Path(path).suffix.lower()

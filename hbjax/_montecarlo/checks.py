@@ -156,7 +156,14 @@ def resolve_devices(devices):
         return list(jax.devices())
     if isinstance(devices, jax.Device):
         return [devices]
+    what = "`devices` must be None or a non-empty sequence of jax.Device"
+    # Checked before list(): a number or a string would fail there, or be split into letters.
+    if isinstance(devices, (str, bytes)) or not isinstance(devices, (Sequence, np.ndarray)):
+        raise TypeError(f"{what}, got {type(devices).__name__}.")
     devices = list(devices)
-    if not devices or not all(isinstance(d, jax.Device) for d in devices):
-        raise TypeError("`devices` must be None or a non-empty sequence of jax.Device.")
+    if not devices:
+        raise ValueError(f"{what}, got an empty sequence.")
+    for d in devices:
+        if not isinstance(d, jax.Device):
+            raise TypeError(f"{what}, got an element of type {type(d).__name__}.")
     return devices

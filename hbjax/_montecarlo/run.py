@@ -23,7 +23,7 @@ from .._core.precision import require_x64
 from .._core.progress import check_progress, make_bar
 from .._core.signals import GiriDesign
 from .._identify.giri import normalise
-from .._misc import positive_float, positive_int
+from .._misc import check_bool, positive_float, positive_int
 from .checks import (
     check_lengths,
     check_study_key,
@@ -104,6 +104,7 @@ def monte_carlo(
     ensure_compilation_cache()
     release_compiled_programs()
     check_progress(progress)
+    keep_estimates = check_bool(keep_estimates, "keep_estimates")
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
     if not isinstance(design, GiriDesign):

@@ -3,7 +3,10 @@
 import matplotlib.pyplot as plt
 import numpy as np
 
+from .._core.signals import GiriDesign
 from .._core.simulate import play
+from .._misc import check_bool, positive_float, positive_int, same_length
+from . import checks
 from .recording import time_axis
 
 
@@ -14,10 +17,13 @@ def _axes(ax):
 
 
 def plot_backlash(backlash, v_range, *, ax=None, label=None, color=None, sweep=True):
-    """Draw the branches ``P1`` (rising) and ``P2`` (falling) over ``v_range = (lo, hi)`` and,
-    with ``sweep``, the loop the play operator traces under a full triangular sweep."""
-    ax = _axes(ax)
-    lo, hi = v_range
+    """Draw the branches ``P1`` (rising) and ``P2`` (falling) of the :class:`hbjax.Backlash`
+    `backlash` over ``v_range = (lo, hi)`` (finite, ``lo < hi``) and, with ``sweep``, the loop
+    the play operator traces under a full triangular sweep. Returns the axes."""
+    sweep = check_bool(sweep, "sweep")
+    backlash = checks.backlash(backlash)
+    lo, hi = checks.interval(v_range, "v_range")
+    ax = _axes(checks.axes(ax, "ax"))
     v = np.linspace(lo, hi, 400)
     line = ax.plot(v, np.asarray(backlash.p1(v)), color=color, lw=1, ls="--",
                    label=None if label is None else f"{label}: P1, P2")[0]
@@ -37,7 +43,13 @@ def plot_backlash(backlash, v_range, *, ax=None, label=None, color=None, sweep=T
 
 
 def plot_staircase(design, backlash, *, periods=2, axes=None):
-    """The paper's Figs. 3-4: ``v3`` over a few periods and the internal signal ``u*``."""
+    """The paper's Figs. 3-4: ``v3`` of the :class:`hbjax.GiriDesign` `design` over
+    `periods` (an integer >= 1) periods and the internal signal ``u*`` of the
+    :class:`hbjax.Backlash` `backlash`, in two `axes`. Returns the axes."""
+    checks.instance(design, GiriDesign, "design", "an hbjax.GiriDesign")
+    backlash = checks.backlash(backlash)
+    periods = positive_int(periods, "periods")
+    axes = checks.axes(axes, "axes", count=2)
     if axes is None:
         _, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
     T = periods * design.staircase_period
@@ -57,11 +69,18 @@ def plot_staircase(design, backlash, *, periods=2, axes=None):
 
 def plot_output(y_measured, y_simulated, *, ax=None, labels=("measured", "simulated"), window=None,
                 dt=None):
-    """Measured vs simulated output (optionally only the samples ``window = (start, stop)``),
-    against time in seconds when the sampling period `dt` is given, else sample numbers."""
-    ax = _axes(ax)
-    y_measured, y_simulated = np.asarray(y_measured), np.asarray(y_simulated)
-    start, stop = window if window is not None else (0, len(y_measured))
+    """Measured vs simulated output (1-D records of equal length; optionally only the samples
+    ``window = (start, stop)``, ``0 <= start < stop <= len``), against time in seconds when
+    the sampling period `dt` (> 0) is given, else sample numbers. Returns the axes."""
+    y_measured = checks.output(y_measured, "y_measured")
+    y_simulated = checks.output(y_simulated, "y_simulated")
+    same_length(y_measured=y_measured, y_simulated=y_simulated)
+    start, stop = checks.window(window, len(y_measured))
+    dt = None if dt is None else positive_float(dt, "dt")
+    if isinstance(labels, (str, bytes)) or not isinstance(labels, (tuple, list)) \
+            or len(labels) != 2:
+        raise TypeError(f"`labels` must be a pair (measured, simulated) of labels, got {labels!r}.")
+    ax = _axes(checks.axes(ax, "ax"))
     t, label = time_axis(len(y_measured), dt)
     ax.plot(t[start:stop], y_measured[start:stop], lw=1, label=labels[0])
     ax.plot(t[start:stop], y_simulated[start:stop], lw=1, ls="--", label=labels[1])

@@ -4,6 +4,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .._core.simulate import play, simulate
+from .._diagnose.result import Diagnosis, Finding
+from . import checks
 from .recording import time_axis
 
 _REGIME = {
@@ -39,6 +41,14 @@ def plot_diagnosis(d, *, finding=None, axes=None):
 
     **Returns:** the three axes.
     """
+    checks.instance(d, Diagnosis, "d", "an hbjax.Diagnosis")
+    if d.v is None or d.y is None or d.nominal is None:
+        raise ValueError("`d` holds no recording or nominal model to plot (`v`, `y` or "
+                         "`nominal` is None): plot the Diagnosis that hbjax.diagnose returned.")
+    if finding is not None:
+        checks.instance(finding, Finding, "finding",
+                        "None or an hbjax.Finding (one of `d.findings`)")
+    axes = checks.axes(axes, "axes", count=3)
     f = d.best if finding is None else finding
     if axes is None:
         _, axes = plt.subplots(3, 1, figsize=(8, 9))

@@ -4,6 +4,25 @@ the ``N^-1/2`` reference, and per-parameter histograms of the estimation errors.
 import matplotlib.pyplot as plt
 import numpy as np
 
+from .._misc import is_real_scalar, positive_int
+from .._montecarlo.study import Study
+from . import checks
+
+
+def _selection(params, names) -> list[int]:
+    """Indices of the parameter names `params` (``None``: all)."""
+    if params is None:
+        return list(range(len(names)))
+    if isinstance(params, (str, bytes)) or not isinstance(params, (tuple, list)) or not params \
+            or not all(isinstance(p, str) for p in params):
+        raise TypeError(f"`params` must be None or a non-empty list of parameter names, "
+                        f"got {params!r}.")
+    unknown = [p for p in params if p not in names]
+    if unknown:
+        raise ValueError(f"`params` names {unknown}, not parameters of the study; its "
+                         f"parameters: {names}.")
+    return [names.index(p) for p in params]
+
 
 def plot_monte_carlo(study, *, params=None, length_index=-1, bins=30, fig=None):
     """Plot a Monte Carlo study.
@@ -14,13 +33,25 @@ def plot_monte_carlo(study, *, params=None, length_index=-1, bins=30, fig=None):
     histogram per parameter of the errors ``theta_hat - theta*`` at ``lengths[length_index]``
     (needs ``keep_estimates=True``; without it only the RMSE panel is drawn).
 
-    **Arguments:** `study` (a :class:`hbjax.Study`), `params` (names to show, default all),
-    `length_index` (which length the histograms show), `bins`, `fig` (a figure to draw in).
+    **Arguments:** `study` (a :class:`hbjax.Study`), `params` (a list of parameter names to
+    show, default all), `length_index` (which length the histograms show, an index into
+    ``study.lengths``), `bins` (a number of bins >= 1, or any ``bins`` matplotlib's ``hist``
+    takes), `fig` (a figure to draw in).
 
     **Returns:** the matplotlib ``Figure``.
     """
+    checks.instance(study, Study, "study", "an hbjax.Study")
     names = list(study.names)
-    sel = [names.index(p) for p in params] if params is not None else list(range(len(names)))
+    sel = _selection(params, names)
+    n_len = len(study.lengths)
+    if not isinstance(length_index, (int, np.integer)) or isinstance(length_index, bool):
+        raise TypeError(f"`length_index` must be an integer, got {length_index!r}.")
+    if not -n_len <= length_index < n_len:
+        raise ValueError(f"`length_index` must index one of the study's {n_len} lengths "
+                         f"({-n_len} to {n_len - 1}), got {length_index}.")
+    if is_real_scalar(bins):
+        positive_int(bins, "bins")
+    fig = checks.figure(fig)
     hist = study.estimates is not None
     ncols = int(np.ceil(np.sqrt(len(sel)))) if hist else 0
     nrows = int(np.ceil(len(sel) / ncols)) if hist else 1

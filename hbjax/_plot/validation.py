@@ -6,11 +6,8 @@ import numpy as np
 
 from .._identify.compare import Comparison, compare
 from .._identify.residual_analysis import ResidualAnalysis, resid
-
-
-def _time_axis(n, dt):
-    t = np.arange(n)
-    return (t * dt, "time (s)") if dt else (t, "sample")
+from . import checks
+from .recording import time_axis
 
 
 def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwargs):
@@ -23,20 +20,21 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
       `v`, `y` (or an :class:`hbjax.Recording` as `v`) with ``compare_kwargs``
       (``initial_state``, ``horizon``, ``names``).
     - `ax`: matplotlib axes (a new figure if ``None``).
-    - `window`: ``(start, stop)`` samples to show.
+    - `window`: ``(start, stop)`` samples to show, ``0 <= start < stop <= len(y)``.
 
     The time axis is in seconds when the recording's ``dt`` is known.
 
     **Returns:** the axes.
     """
+    ax = checks.axes(ax, "ax")
     if not isinstance(result, Comparison):
         if v is None:
             raise TypeError("`v` is missing: pass a Comparison, or a model with `v` and `y`.")
         result = compare(result, v, y, **compare_kwargs)
+    sl = slice(*checks.window(window, result.y.shape[0]))
     if ax is None:
         _, ax = plt.subplots(figsize=(8, 3.5))
-    t, label = _time_axis(result.y.shape[0], result.dt)
-    sl = slice(*window) if window is not None else slice(None)
+    t, label = time_axis(result.y.shape[0], result.dt)
     ax.plot(t[sl], result.y[sl], color="k", lw=1.2, label="measured")
     for k, (name, fit) in enumerate(zip(result.names, result.fits)):
         ax.plot(t[sl], result.y_hats[k][sl], lw=1, color=f"C{k}", label=f"{name}: {fit:.1f}%")
@@ -58,6 +56,7 @@ def plot_resid(result, v=None, y=None, *, axes=None, lags=25):
 
     **Returns:** the two axes.
     """
+    axes = checks.axes(axes, "axes", count=2)
     if not isinstance(result, ResidualAnalysis):
         if v is None:
             raise TypeError("`v` is missing: pass a ResidualAnalysis, or a model with `v` and `y`.")

@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
-from ..effect_base import AbstractEffect, base_model, effect_error
+from ..effect_base import AbstractEffect, Constraint, base_model, effect_error
 from ..explain import rounded
 
 
@@ -59,6 +59,8 @@ class HarmonicDistortion(AbstractEffect):
 
     name: ClassVar[str] = "harmonic_distortion"
     n_params: ClassVar[int] = 3
+    constraints: ClassVar[dict] = {"h1": Constraint(), "h2": Constraint(), "h3": Constraint(),
+                                   "v_scale": Constraint(positive=True)}
 
     @classmethod
     def from_params(cls, base, params, consts=None):

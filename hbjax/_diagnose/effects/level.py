@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
+from ..effect_base import Constraint
 from ..explain import rounded
 from .recursive import AbstractRecursiveEffect, arx_scan
 
@@ -58,6 +59,9 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
 
     name: ClassVar[str] = "level_dependent_dynamics"
     n_params: ClassVar[int] = 3
+    constraints: ClassVar[dict] = {
+        "alpha": Constraint(), "log_depth": Constraint(), "y_mean": Constraint(),
+        "y_std": Constraint(positive=True), "datum": Constraint(optional=True)}
     # Equation error in a loop reaches the free run through 1/A, and the refit follows a
     # level law closely within the range a record excites: on two strong records of the law
     # from the generator in tests/, the law *at its true parameters* simulated the held-out

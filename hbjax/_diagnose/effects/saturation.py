@@ -10,10 +10,13 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein, play_trajectory
-from ..effect_base import neutral_ints
+from ..effect_base import Constraint, neutral_ints
 from ..explain import rounded, saturation_mask
 from ..kernel_effect import AbstractKernelEffect, put
 from ..residual_tests import plateaus, windows
+
+#: the clip levels: finite numbers (``None`` where that side is open), lower below upper
+LEVELS = {"lower": Constraint(optional=True, below="upper"), "upper": Constraint(optional=True)}
 
 
 def _levels(x, side, between=False):
@@ -71,6 +74,7 @@ class OutputSaturation(AbstractKernelEffect):
 
     name: ClassVar[str] = "output_saturation"
     slots: ClassVar[dict] = {"lower": "out_lo", "upper": "out_hi"}
+    constraints: ClassVar[dict] = LEVELS
     output_static: ClassVar[bool] = True
     # An actuator limit and a curved sensor flatten the output too, but leave the equation
     # noise on it: only a clip of the measurement holds it *exactly* at a level, again
@@ -135,6 +139,7 @@ class InputSaturation(AbstractKernelEffect):
 
     name: ClassVar[str] = "input_saturation"
     slots: ClassVar[dict] = {"lower": "in_lo", "upper": "in_hi"}
+    constraints: ClassVar[dict] = LEVELS
 
     @classmethod
     def candidate(cls, ctx):
