@@ -82,7 +82,8 @@ def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, str
             # decision rule can be re-evaluated on these records without re-diagnosing
             rec["candidates"] = {
                 name: {k: row[k] for k in ("bic", "k", "fit_sim", "fit_pred", "dbic", "dm_z",
-                                           "dm_z_simulation", "base_p", "decision") if k in row}
+                                           "dm_z_simulation", "dm_z_over_constant", "base_p",
+                                           "decision") if k in row}
                 for name, row in d.candidates.items()}
             rec["n_fit"] = d.n_fit
         except Exception as exc:  # noqa: BLE001

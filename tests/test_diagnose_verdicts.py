@@ -129,6 +129,21 @@ def test_a_move_of_the_cut_keeps_a_late_change_in_the_fitting_part():
     assert d.best is not None and d.best.effect == "parameter_change", d.summary()
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_an_output_unrelated_to_the_input_is_not_explained(seed):
+    """The measured output is noise that has nothing to do with the input. The nominal
+    free run is worse than a constant (held-out fit far below 0%), so a clip or a refit
+    that flattens it "improves" it significantly; neither beats a constant output, and
+    neither is reported."""
+    rng = np.random.default_rng(seed)
+    v = np.repeat(rng.uniform(-6, 6, 80), 10)
+    y = 5 * rng.standard_normal(len(v))
+    d = hbjax.diagnose(hbjax.default_system(), v, y, progress=False,
+                       effects=["output_saturation", "offset_drift"])
+    assert d.findings == [] and d.verdict == "unexplained", d.summary()
+    assert "better than a constant output" in d.candidates["parameter_mismatch"]["decision"]
+
+
 def test_without_the_channel_the_structure_is_not_consistent():
     model, v, y, _ = _aux_record(0)
     d = hbjax.diagnose(model, v, y, effects=["parameter_mismatch"], progress=False)

@@ -14,7 +14,7 @@ from .._misc import jsonable as _jsonable
 from . import candidates as cands
 from . import effects as fx
 from . import residual_tests as rt
-from .decide import BIC_MARGIN, DM_Z
+from .decide import BIC_MARGIN, DM_Z, over_constant
 from .kernel import MAX_DELAY
 from .result import Finding
 
@@ -70,8 +70,9 @@ def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names
     or of the free-run errors); on the held-out part a plateau at the same level
     (an independent, model-free confirmation), at least MIN_CHANGED samples the clip
     changes and a significant error reduction on them (the only samples where the two
-    errors differ: :func:`_significant`), and a held-out fit above both the nominal
-    model's and the refit's.
+    errors differ: :func:`_significant`), a held-out fit above both the nominal
+    model's and the refit's, and a held-out free run significantly better than a
+    constant output (:func:`hbjax._diagnose.decide.over_constant`).
     Where the held-out part never reaches the fitted clip (fewer than MIN_CHANGED samples
     change there), the held-out tests are replaced by a cross-validation over contiguous
     folds of the whole record (:func:`_folds`); the BIC gain on the fitting segment and a
@@ -145,7 +146,7 @@ def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names
         dbic = max(dbic, dbic_free_run)
     yh, eh = y[n_fit:], predicted(lo, hi)[n_fit:]
     fit_before = float(stats[0]["fit_sim"])
-    fit_after = rt.fit_percent(yh, y_ext[n_fit:])
+    fit_after = rt.fit_percent_unchecked(yh, y_ext[n_fit:])
     ref_i = names.index("parameter_mismatch") + 1
     fit_refit = float(stats[ref_i]["fit_sim"])
     changed = y_ext[n_fit:] != y_nom[n_fit:]
@@ -165,9 +166,14 @@ def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names
     n_main = n_fit - burn
     bic_main = n_main * math.log(max(float(np.sum(r_main**2)), 1e-300) / n_main) \
         + k * math.log(n_main)
-    row = {"bic": bic_main, "k": k, "fit_sim": fit_after, "fit_pred": rt.fit_percent(yh, yh - eh),
+    row = {"bic": bic_main, "k": k, "fit_sim": fit_after,
+           "fit_pred": rt.fit_percent_unchecked(yh, yh - eh),
            "bic_from_burn_in": bic_ext, "nominal_bic_from_burn_in": bic_nom, "burn_in": b0,
            "lower": lo if np.isfinite(lo) else None, "upper": hi if np.isfinite(hi) else None}
+    dm_const = over_constant(y, n_fit, burn, yh - y_ext[n_fit:])
+    row["dm_z_over_constant"] = dm_const
+    if not dm_const > DM_Z:  # a clip of a useless nominal model explains nothing
+        return row, None
     validation = {"by": "held-out part"}
     if n_changed < MIN_CHANGED and dbic > BIC_MARGIN and fit_after >= fit_refit:
         # the held-out part never reaches the clip (a sweep whose output falls after a
@@ -194,7 +200,7 @@ def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names
         "reference": "nominal", "delta_bic_vs_nominal": dbic,
         "delta_bic_vs_refit": stats[ref_i]["bic"] - bic_main, "bic": bic_main,
         "dm_z": dm_changed, "event_sign_test": sign, "dm_z_whole_holdout": dm_all,
-        "held_out_samples_changed": n_changed,
+        "held_out_samples_changed": n_changed, "dm_z_over_constant": dm_const,
         "reference_fit": fit_before, "refit_fit": fit_refit, "parameters_fitted": k,
         "signature": {s: sig[s] for s in sig if sig[s]},
         "held_out_plateaus": {s: dict(held[s], windows=[[a_ + n_fit, b_ + n_fit] for a_, b_ in
@@ -246,7 +252,8 @@ def _folds(y, y_nom, fit_levels, sig, b0):
     n_changed = int(changed.sum())
     dm = rt.diebold_mariano(r_nom[changed], r_cv[changed]) if n_changed >= 2 else 0.0
     sign = rt.event_sign_test(r_nom, r_cv, changed)
-    fit_nom, fit_cv = rt.fit_percent(y[b0:], y_nom[b0:]), rt.fit_percent(y[b0:], y_cv[b0:])
+    fit_nom = rt.fit_percent_unchecked(y[b0:], y_nom[b0:])
+    fit_cv = rt.fit_percent_unchecked(y[b0:], y_cv[b0:])
     accepted = bool(n_changed >= MIN_CHANGED and _significant(dm, sign) and fit_cv > fit_nom
                     and max(seen.values(), default=0) >= 2)
     return {"by": f"{N_FOLDS} folds (the held-out part never reaches the clip)",

@@ -50,6 +50,7 @@ def statistics(y, fast_all, eps_all, ysim_all, n_fit, burn, lay, candidates, the
         e = eps_all[i]
         sse = float(np.sum(fast_all[i][burn:n_fit] ** 2))
         finite = math.isfinite(sse) and np.all(np.isfinite(ysim_all[i]))
+        fit = rt.fit_percent_unchecked
         if i == 0:
             k, grid = 0, 1
         else:
@@ -60,10 +61,20 @@ def statistics(y, fast_all, eps_all, ysim_all, n_fit, burn, lay, candidates, the
         yh = y[n_fit:]
         out.append({
             "bic": bic, "k": k, "sse": sse,
-            "fit_sim": rt.fit_percent(yh, ysim_all[i][n_fit:]) if finite else -np.inf,
-            "fit_pred": rt.fit_percent(yh, yh - e[n_fit:]) if finite else -np.inf,
+            "fit_sim": fit(yh, ysim_all[i][n_fit:]) if finite else -np.inf,
+            "fit_pred": fit(yh, yh - e[n_fit:]) if finite else -np.inf,
         })
     return out
+
+
+def over_constant(y, n_fit, burn, error) -> float:
+    """Diebold-Mariano z that the held-out ``error`` is smaller than that of a constant
+    output, the fitting part's mean. A model that does not beat this explains no part of
+    the output, whatever it gains on a nominal model that is worse than a constant (on an
+    output unrelated to the input, a clip that held the nominal free run near the mean
+    lifted the held-out fit from -196% to 0% and was reported as the explanation)."""
+    y = np.asarray(y, float)
+    return rt.diebold_mariano(y[n_fit:] - np.mean(y[burn:n_fit]), np.asarray(error, float))
 
 
 def _margin_over_noise_rival(c, st, stats, names, dm, dm_pred, against, nom, dm_sim_nom):
@@ -118,7 +129,10 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
     candidate when the refit's linear block is unstable, the nominal model) by more than
     BIC_MARGIN on the fitting segment, its held-out simulation error
     is significantly smaller than both the reference's and the nominal model's
-    (Diebold-Mariano z > DM_Z each), and its held-out simulation fit is above both. A gain
+    (Diebold-Mariano z > DM_Z each), and its held-out simulation fit is above both. Every
+    finding must also beat a constant output on the held-out part (:func:`over_constant`,
+    z > DM_Z, in its own metric): a nominal model worse than a constant is improved by
+    anything that flattens it, and that explains nothing. A gain
     in one-step prediction alone is at most a noise-model finding: only ``colored_noise``
     (a noise model, no mechanism) is judged on held-out prediction, and its free run must
     not be significantly worse than that of the model it extends (its reference, the
@@ -196,6 +210,13 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
             # independent cases: it refused 3 true unmodeled_dynamics and changed no
             # colored_noise case and no clean record (benchmarks/RESULTS.md).
             why = None
+        if why is None:
+            dm_const = over_constant(y, n_fit, ctx.burn, held(i, metric))
+            st["dm_z_over_constant"] = dm_const
+            if not dm_const > DM_Z:
+                why = (f"held-out {metric} not significantly better than a constant output "
+                       f"(Diebold-Mariano z {dm_const:.2f} <= {DM_Z:g}): it explains no part "
+                       f"of the output")
         st["decision"] = why or "reported"
         if why is not None:
             continue
@@ -204,6 +225,7 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
             "delta_bic_vs_refit": ref["bic"] - st["bic"],
             "delta_bic_vs_nominal": nom["bic"] - st["bic"],
             "dm_z": dm, "dm_z_simulation_vs_nominal": dm_sim_nom,
+            "dm_z_over_constant": st["dm_z_over_constant"],
             "reference": "nominal" if j == 0 else "parameter_mismatch",
             "base": "nominal (held)" if c.anchored else "refitted",
             "reference_fit": against[key], "parameters_fitted": st["k"], "bic": st["bic"],
@@ -213,7 +235,13 @@ def decide(ctx, candidates, stats, theta_fit, ints, eps_all, ysim_all, u_all, y,
             evidence["judged_on"] = (
                 f"held-out one-step prediction (free-run gain not significant) and a BIC "
                 f"margin of {rival_margin:.1f} over the noise model {c.cls.noise_rival}")
-        model = cands.to_model(ctx, c, np.asarray(theta_fit[i - 1]), ints[i])
+        try:
+            model = cands.to_model(ctx, c, np.asarray(theta_fit[i - 1]), ints[i])
+        except (TypeError, ValueError) as exc:
+            # the fit ended where the effect's own constraints refuse its values (a clip
+            # whose lower level passed its upper one): no valid model, so no finding
+            st["decision"] = f"failed: the fitted values are not a valid {c.effect} ({exc})"
+            continue
         text = model.describe(ctx, dict(
             y=y, v=v, n_fit=n_fit, ysim=ysim_all[i], ysim_ref=ysim_all[ref_i], u=u_all[i],
             ints=ints[i], tests=tests))

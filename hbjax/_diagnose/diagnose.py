@@ -37,6 +37,7 @@ from .._misc import (
     as_float_array,
     check_key,
     check_values,
+    fraction,
     same_length,
 )
 from .._misc import jsonable as _jsonable
@@ -69,8 +70,7 @@ def _check_inputs(model, v, y, holdout, effects, key):
     v = check_values(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v")
     y = check_values(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y")
     same_length(v=v, y=y)
-    if isinstance(holdout, bool) or not isinstance(holdout, (int, float)) or not 0 < holdout < 1:
-        raise ValueError(f"`holdout` must be a fraction in (0, 1), got {holdout!r}.")
+    holdout = fraction(holdout, "holdout")
     lay_p = model.arx.na + model.arx.nb + 2 * model.backlash.m
     n = int(v.shape[0])
     n_hold = int(round(holdout * n))
@@ -211,7 +211,8 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                        u_all, y, v, n_fit, tests)
     table = {c.label: {k: stats[i + 1].get(k) for k in
                         ("bic", "k", "sse", "fit_sim", "fit_pred", "lm_steps", "lm_converged",
-                         "dbic", "dm_z", "dm_z_simulation", "base_p", "decision")}
+                         "dbic", "dm_z", "dm_z_simulation", "dm_z_over_constant", "base_p",
+                         "decision")}
              for i, c in enumerate(candidates)}
     table["nominal"] = {k: stats[0][k] for k in ("bic", "k", "sse", "fit_sim", "fit_pred")}
     if fx.OutputSaturation in effects and not any(f.effect == "output_saturation"

@@ -100,8 +100,9 @@ class Diagnosis:
                          f"ratio {self.split['requested_ratio']['ratio']:.2f} -> "
                          f"{self.split['ratio']['ratio']:.2f}).")
         if skipped := self.split.get("skipped_for_error"):
+            cuts = f"{len(skipped)} earlier cut{'s' * (len(skipped) > 1)}"
             lines.append(
-                f"{len(skipped)} earlier cut{'s' * (len(skipped) > 1)} not taken although the held-out part is less "
+                f"{cuts} not taken although the held-out part is less "
                 f"excited (ratio {self.split['ratio']['ratio']:.2f}): they would have moved the "
                 f"nominal model's misfit out of the fitting part (held-out/fitting mean squared "
                 f"free-run error up to {max(s['error_ratio'] for s in skipped):.1f}, limit "
