@@ -35,6 +35,7 @@ from ._diagnose.residual_tests import fit_percent as fit_percent
 from ._diagnose.diagnose import Diagnosis as Diagnosis, Finding as Finding, diagnose as diagnose
 from ._diagnose.effects import EFFECTS as EFFECTS
 from ._diagnose.effect_base import AbstractEffect as AbstractEffect
+from ._diagnose.effect_base import EffectConstraint as EffectConstraint
 # --- io, datasets, cli (issue 6) ---
 from . import datasets as datasets, internal as internal
 from ._io.recording import (

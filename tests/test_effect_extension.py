@@ -188,11 +188,10 @@ def test_valid_effects_and_traced_values_pass(system):
 
 
 def test_a_new_effect_gets_checks_by_declaring_them(system):
-    from hbjax._diagnose.effect_base import Constraint
 
     class TimedStep(OutputStep):
-        constraints: ClassVar[dict] = {"height": Constraint(),
-                                       "time": Constraint(minimum=0.0)}
+        constraints: ClassVar[dict] = {"height": hbjax.EffectConstraint(),
+                                       "time": hbjax.EffectConstraint(minimum=0.0)}
 
     TimedStep(system, jnp.asarray(1.0), jnp.asarray(5.0))
     with pytest.raises(ValueError, match=r"TimedStep\.time` must be in \[0\.0, inf\]"):

@@ -549,7 +549,7 @@ bad(CLI, "hbjax show", CLIError, "exit 1: hbjax show: error: model file .* does 
 bad(CLI, "hbjax show", CLIError, "exit 1: hbjax show: error: .*not a valid JSON model file", lambda t: cli("show", text_file(t, "m.json", "{")))
 bad(CLI, "hbjax signals", CLIError, "exit 1: .*--design .*`h_m` must be a finite number > 0", lambda t: cli("signals", "--design", "n=2,m=3,h_m=0", "--samples", 40, "--prefix", t / "v"))
 bad(CLI, "hbjax signals", CLIError, "exit 1: .*--design needs exactly n, m and h_m", lambda t: cli("signals", "--design", "n=2,m=3", "--samples", 40, "--prefix", t / "v"))
-bad(CLI, "hbjax signals", CLIError, "exit 1: .*`T` must be an integer >= 18, got 10", lambda t: cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", 10, "--prefix", t / "v"))
+bad(CLI, "hbjax signals", CLIError, "exit 1: .*`--samples` must be an integer >= 18, got 10", lambda t: cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", 10, "--prefix", t / "v"))
 bad(CLI, "hbjax signals", CLIError, "exit 2: .*--samples: invalid int value", lambda t: cli("signals", "--design", "n=2,m=3,h_m=4", "--samples", "many"))
 bad(CLI, "hbjax simulate", CLIError, "exit 1: hbjax simulate: error: --noise-std must be a finite number >= 0", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", t / "y.csv", "--noise-std", -1))
 bad(CLI, "hbjax simulate", CLIError, "exit 1: .*not finite\\) at row 3", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\ninf\n"), "--out", t / "y.csv"))

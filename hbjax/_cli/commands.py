@@ -187,8 +187,13 @@ def _describe_model(model, indent: str = "  ") -> str:
 
 def cmd_signals(args) -> int:
     from .._io.recording import format_float
+    from .._misc import positive_int
 
     design = _parse_design(args.design)
+    # every signal needs one period of its own (the staircase's is the longest): checked
+    # under the option's name before anything is written
+    positive_int(args.samples, "samples",
+                 minimum=max(design.binary_period, design.staircase_period))
     paths = [f"{args.prefix}{k}.csv" for k in (1, 2, 3)]
     _check_outputs(args, {f"--prefix ({p})": p for p in paths})
     signals = (

@@ -115,7 +115,7 @@ def base_model(lay: Layout, theta) -> Hammerstein:
 
 
 @dataclasses.dataclass(frozen=True)
-class Constraint:
+class EffectConstraint:
     """What one parameter field of an effect must hold: declared in the class's
     ``constraints`` (field -> constraint) and checked by
     :meth:`AbstractEffect.__check_init__`, so both the constructor and
@@ -205,9 +205,9 @@ class AbstractEffect(AbstractModel):
     - :meth:`output_term` (added to the linear block's output) and/or :meth:`input_term`
       (added to the backlash output before the linear block);
     - :meth:`describe`: the physics sentence built from the fitted values;
-    - optionally `constraints` (``ClassVar[dict[str, Constraint]]``): what each parameter
+    - optionally `constraints` (``ClassVar[dict[str, EffectConstraint]]``): what each parameter
       field must hold (shape, finite, positive, bounds, ``None`` allowed, ordered pairs),
-      checked when the effect is built or loaded from a file (:class:`Constraint`);
+      checked when the effect is built or loaded from a file (:class:`hbjax.EffectConstraint`);
     - optionally `noise_rival` (``ClassVar[str]``, see below);
     - optionally `anchorable` (``ClassVar[bool]``, default ``True``): the diagnosis also
       fits the effect with the base held at the nominal values (its *anchored* variant,
@@ -250,7 +250,7 @@ class AbstractEffect(AbstractModel):
     anchorable: ClassVar[bool] = True
     anchored_form: ClassVar[type | None] = None
     signature_rivals: ClassVar[tuple[str, ...]] = ()
-    constraints: ClassVar[dict[str, Constraint]] = {}
+    constraints: ClassVar[dict[str, EffectConstraint]] = {}
 
     def __check_init__(self):
         if not isinstance(self.base, Hammerstein):

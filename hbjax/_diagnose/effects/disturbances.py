@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
-from ..effect_base import Constraint, neutral_ints
+from ..effect_base import EffectConstraint, neutral_ints
 from ..explain import rounded
 from ..kernel_effect import AbstractKernelEffect, put
 from ..residual_tests import periodogram, spectral_peaks
@@ -27,7 +27,7 @@ class ColoredNoise(AbstractKernelEffect):
 
     name: ClassVar[str] = "colored_noise"
     slots: ClassVar[dict] = {"d": "noise_d"}
-    constraints: ClassVar[dict] = {"d": Constraint((2,))}
+    constraints: ClassVar[dict] = {"d": EffectConstraint((2,))}
 
     @classmethod
     def candidate(cls, ctx):
@@ -61,7 +61,7 @@ class OffsetDrift(AbstractKernelEffect):
 
     name: ClassVar[str] = "offset_drift"
     slots: ClassVar[dict] = {"offset": "drift_offset", "rate": "drift_rate"}
-    constraints: ClassVar[dict] = {"offset": Constraint(), "rate": Constraint()}
+    constraints: ClassVar[dict] = {"offset": EffectConstraint(), "rate": EffectConstraint()}
 
     @classmethod
     def candidate(cls, ctx):
@@ -97,8 +97,8 @@ class PeriodicDisturbance(AbstractKernelEffect):
     slots: ClassVar[dict] = {"frequency": "sin_freq", "cos_amp": "sin_cos",
                              "sin_amp": "sin_sin"}
     # (any finite frequency: f, f + 1 and -f are the same line, and the fit is free)
-    constraints: ClassVar[dict] = {"frequency": Constraint(), "cos_amp": Constraint(),
-                                   "sin_amp": Constraint()}
+    constraints: ClassVar[dict] = {"frequency": EffectConstraint(), "cos_amp": EffectConstraint(),
+                                   "sin_amp": EffectConstraint()}
 
     @classmethod
     def candidate(cls, ctx):

@@ -14,7 +14,7 @@ from ..._core.arx import ARX
 from ..._core.backlash import Backlash
 from ..._core.model import Hammerstein
 from ..._core.params import param_names
-from ..effect_base import NO_CHANGE, Constraint, neutral_ints
+from ..effect_base import NO_CHANGE, EffectConstraint, neutral_ints
 from ..explain import effect_windows, rounded
 from ..kernel import MAX_DELAY
 from ..kernel_effect import AbstractKernelEffect
@@ -70,7 +70,7 @@ class ExtraDelay(AbstractKernelEffect):
     name: ClassVar[str] = "extra_delay"
     int_fields: ClassVar[dict] = {"delay": 0}
     # the kernel's delay line holds MAX_DELAY samples: a longer delay would be clamped
-    constraints: ClassVar[dict] = {"delay": Constraint(integer=True, maximum=MAX_DELAY)}
+    constraints: ClassVar[dict] = {"delay": EffectConstraint(integer=True, maximum=MAX_DELAY)}
 
     @classmethod
     def candidate(cls, ctx):
@@ -102,7 +102,7 @@ class UnmodeledDynamics(AbstractKernelEffect):
 
     name: ClassVar[str] = "unmodeled_dynamics"
     slots: ClassVar[dict] = {"a_extra": "a_extra", "b_extra": "b_extra"}
-    constraints: ClassVar[dict] = {"a_extra": Constraint(), "b_extra": Constraint()}
+    constraints: ClassVar[dict] = {"a_extra": EffectConstraint(), "b_extra": EffectConstraint()}
     # AR(1)-coloured equation error is this block one order up with the new pole cancelled
     # by the new zero: both gain in one-step prediction. Beating colored_noise by the BIC
     # margin means the zero does not cancel the pole, i.e. the input-to-output dynamics
@@ -160,8 +160,9 @@ class ParameterChange(AbstractKernelEffect):
     int_fields: ClassVar[dict] = {"time": 1}
     # (NO_CHANGE: after the end of any record, the kernel's neutral change time)
     constraints: ClassVar[dict] = {
-        "time": Constraint(integer=True, maximum=NO_CHANGE), "da": Constraint(("na",)),
-        "db": Constraint(("nb",)), "dc1": Constraint(("m",)), "dc2": Constraint(("m",))}
+        "time": EffectConstraint(integer=True, maximum=NO_CHANGE), "da": EffectConstraint(("na",)),
+        "db": EffectConstraint(("nb",)), "dc1": EffectConstraint(("m",)),
+        "dc2": EffectConstraint(("m",))}
     wide: ClassVar[bool] = True
 
     def after(self) -> Hammerstein:

@@ -9,7 +9,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
-from ..effect_base import Constraint
+from ..effect_base import EffectConstraint
 from ..explain import rounded
 from ..residual_tests import windows
 from .recursive import AbstractRecursiveEffect, arx_scan
@@ -37,8 +37,8 @@ class CoulombFrictionInLoop(AbstractRecursiveEffect):
 
     name: ClassVar[str] = "coulomb_friction"
     n_params: ClassVar[int] = 2
-    constraints: ClassVar[dict] = {"force": Constraint(), "viscous": Constraint(),
-                                   "width": Constraint(positive=True)}
+    constraints: ClassVar[dict] = {"force": EffectConstraint(), "viscous": EffectConstraint(),
+                                   "width": EffectConstraint(positive=True)}
     # A driven side whose velocity the output is integrates the applied force: equation
     # error then dominates every free run (held-out fits of 17-20 % for the nominal model,
     # the refit and the true friction alike on a generator record of size ratio 7.5), and

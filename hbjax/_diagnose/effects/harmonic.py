@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
-from ..effect_base import AbstractEffect, Constraint, base_model, effect_error
+from ..effect_base import AbstractEffect, EffectConstraint, base_model, effect_error
 from ..explain import rounded
 
 
@@ -59,8 +59,9 @@ class HarmonicDistortion(AbstractEffect):
 
     name: ClassVar[str] = "harmonic_distortion"
     n_params: ClassVar[int] = 3
-    constraints: ClassVar[dict] = {"h1": Constraint(), "h2": Constraint(), "h3": Constraint(),
-                                   "v_scale": Constraint(positive=True)}
+    constraints: ClassVar[dict] = {"h1": EffectConstraint(), "h2": EffectConstraint(),
+                                   "h3": EffectConstraint(),
+                                   "v_scale": EffectConstraint(positive=True)}
 
     @classmethod
     def from_params(cls, base, params, consts=None):

@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
-from ..effect_base import Constraint
+from ..effect_base import EffectConstraint
 from ..explain import effect_windows, rounded
 from .recursive import AbstractRecursiveEffect, arx_scan
 
@@ -36,7 +36,7 @@ class SeriesLag(AbstractRecursiveEffect):
     name: ClassVar[str] = "unmodeled_dynamics"
     n_params: ClassVar[int] = 2
     noise_rival: ClassVar[str | None] = "colored_noise"  # as UnmodeledDynamics's
-    constraints: ClassVar[dict] = {"pole": Constraint(), "zero": Constraint()}
+    constraints: ClassVar[dict] = {"pole": EffectConstraint(), "zero": EffectConstraint()}
 
     @classmethod
     def from_params(cls, base, params, consts=None):

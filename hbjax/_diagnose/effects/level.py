@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
-from ..effect_base import Constraint
+from ..effect_base import EffectConstraint
 from ..explain import rounded
 from .recursive import AbstractRecursiveEffect, arx_scan
 
@@ -60,8 +60,8 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     name: ClassVar[str] = "level_dependent_dynamics"
     n_params: ClassVar[int] = 3
     constraints: ClassVar[dict] = {
-        "alpha": Constraint(), "log_depth": Constraint(), "y_mean": Constraint(),
-        "y_std": Constraint(positive=True), "datum": Constraint(optional=True)}
+        "alpha": EffectConstraint(), "log_depth": EffectConstraint(), "y_mean": EffectConstraint(),
+        "y_std": EffectConstraint(positive=True), "datum": EffectConstraint(optional=True)}
     # Equation error in a loop reaches the free run through 1/A, and the refit follows a
     # level law closely within the range a record excites: on two strong records of the law
     # from the generator in tests/, the law *at its true parameters* simulated the held-out

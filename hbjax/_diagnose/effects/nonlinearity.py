@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein
-from ..effect_base import Constraint
+from ..effect_base import EffectConstraint
 from ..explain import effect_windows, rounded
 from ..kernel_effect import AbstractKernelEffect
 from ..residual_tests import windows
@@ -30,8 +30,9 @@ class OutputNonlinearity(AbstractKernelEffect):
     name: ClassVar[str] = "output_nonlinearity"
     slots: ClassVar[dict] = {"k2": "nl2", "k3": "nl3"}
     const_fields: ClassVar[dict] = {"center": 1, "scale": 2}
-    constraints: ClassVar[dict] = {"k2": Constraint(), "k3": Constraint(),
-                                   "center": Constraint(), "scale": Constraint(positive=True)}
+    constraints: ClassVar[dict] = {"k2": EffectConstraint(), "k3": EffectConstraint(),
+                                   "center": EffectConstraint(),
+                                   "scale": EffectConstraint(positive=True)}
     output_static: ClassVar[bool] = True
 
     @classmethod
@@ -73,7 +74,8 @@ class CoulombFriction(AbstractKernelEffect):
     name: ClassVar[str] = "coulomb_friction"
     slots: ClassVar[dict] = {"force": "friction"}
     const_fields: ClassVar[dict] = {"width": 3}
-    constraints: ClassVar[dict] = {"force": Constraint(), "width": Constraint(positive=True)}
+    constraints: ClassVar[dict] = {"force": EffectConstraint(),
+                                   "width": EffectConstraint(positive=True)}
 
     @classmethod
     def candidate(cls, ctx):
@@ -112,8 +114,8 @@ class BranchDegree(AbstractKernelEffect):
     name: ClassVar[str] = "branch_degree"
     slots: ClassVar[dict] = {"c1_extra": "c1_extra", "c2_extra": "c2_extra"}
     const_fields: ClassVar[dict] = {"scale": 0}
-    constraints: ClassVar[dict] = {"c1_extra": Constraint(), "c2_extra": Constraint(),
-                                   "scale": Constraint(positive=True)}
+    constraints: ClassVar[dict] = {"c1_extra": EffectConstraint(), "c2_extra": EffectConstraint(),
+                                   "scale": EffectConstraint(positive=True)}
 
     @classmethod
     def candidate(cls, ctx):

@@ -10,13 +10,14 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..._core.model import Hammerstein, play_trajectory
-from ..effect_base import Constraint, neutral_ints
+from ..effect_base import EffectConstraint, neutral_ints
 from ..explain import rounded, saturation_mask
 from ..kernel_effect import AbstractKernelEffect, put
 from ..residual_tests import plateaus, windows
 
 #: the clip levels: finite numbers (``None`` where that side is open), lower below upper
-LEVELS = {"lower": Constraint(optional=True, below="upper"), "upper": Constraint(optional=True)}
+LEVELS = {"lower": EffectConstraint(optional=True, below="upper"),
+          "upper": EffectConstraint(optional=True)}
 
 
 def _levels(x, side, between=False):
