@@ -57,6 +57,7 @@ def test_recorded_channel_is_named_as_missing_input(with_channel):
     assert f.parameters["channel"] == "aux" and f.parameters["channels"] == ["aux"]
     assert f.metric == "simulation" and f.fit_after > f.fit_before + 10
     assert f.evidence["dm_z"] > 2 and f.evidence["dm_z_vs_no_channel"] > 2
+    assert f.evidence["dm_z_over_constant"] > 2
     # the fitted extension runs on the record and reproduces the held-out output
     y_ext = np.asarray(hbjax.simulate(f.model, v))
     n = d.n_fit

@@ -22,7 +22,8 @@ the one-step prediction error ``A_nom (y - y_ext)`` (``criterion="prediction"``)
 output error (``"simulation"``). The best by BIC (with ``2 ln G`` for the ``G`` models tried)
 is reported as ``missing_input`` only if it beats the reference by more than the BIC margin
 and improves the **held-out free-run simulation** significantly against both the nominal
-model and the reference (Diebold-Mariano z > 2), to a fit above both.
+model and the reference (Diebold-Mariano z > 2), to a fit above both, and beats a constant
+output on the held-out part (:func:`hbjax._diagnose.decide.over_constant`).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from . import residual_tests as rt
+from .decide import over_constant
 from .._core.arx import all_pole
 from .._core.model import AbstractModel, Hammerstein
 from .._misc import lag_sum, lagged
@@ -190,10 +192,15 @@ def fit_missing_input(model: Hammerstein, y, y_nom, channels: dict, n_fit: int, 
     st, y_ext = best["stats"], best["y_ext"]
     r_nom, r_ref, r_ext = yh - y_nom[n_fit:], yh - y_ref[n_fit:], yh - y_ext[n_fit:]
     dm_nom, dm_ref = rt.diebold_mariano(r_nom, r_ext), rt.diebold_mariano(r_ref, r_ext)
+    # The same guard as every other finding: a channel that only repairs a nominal free run
+    # worse than a constant explains no part of the output.
+    dm_const = over_constant(y, n_fit, burn, r_ext)
+    st["dm_z_over_constant"] = dm_const
     dbic = ref["bic"] - st["bic"]
     best.update(reference=ref, fit_nominal=fit_nom, dm_vs_nominal=dm_nom, dm_vs_reference=dm_ref,
-                delta_bic_vs_reference=dbic, refit_fit=refit_fit,
+                dm_over_constant=dm_const, delta_bic_vs_reference=dbic, refit_fit=refit_fit,
                 accepted=bool(dbic > bic_margin and dm_nom > dm_z and dm_ref > dm_z
+                              and dm_const > dm_z
                               and st["fit_sim"] > max(fit_nom, ref["fit_sim"])))
     best["model"] = _model(model, best, channels_order=best["subset"],
                            signals=np.stack([channels[s] for s in best["subset"]], axis=1))

@@ -258,6 +258,7 @@ def _missing_input(model, y, ysim_all, stats, names, channels, n_fit, burn, crit
         "delta_bic_vs_refit": stats[ref_i]["bic"] - best["stats"]["bic"],
         "delta_bic_vs_no_channel": best["delta_bic_vs_reference"],
         "dm_z": best["dm_vs_nominal"], "dm_z_vs_no_channel": best["dm_vs_reference"],
+        "dm_z_over_constant": best["dm_over_constant"],
         "no_channel_fit": best["reference"]["fit_sim"], "refit_fit": best["refit_fit"],
         "reference_fit": best["fit_nominal"], "residual_correlation": best["correlation"],
     }
