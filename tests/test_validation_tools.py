@@ -208,6 +208,17 @@ def test_select_structure_finds_true_orders():
     assert sum(hits) >= 4, hits
 
 
+def test_select_structure_selects_nothing_when_every_fit_fails(system):
+    """An output unrelated to the input: every fit fails, and no structure is named best."""
+    _, v, _ = system
+    y = np.random.default_rng(0).normal(size=np.shape(v)[0])
+    sel = hbjax.select_structure((v, y), na=[1, 2], nb=2, m=3, key=jax.random.PRNGKey(0),
+                                 starts=4, progress=False)
+    assert not np.any(sel.success)
+    assert sel.best is None and sel.best_model is None
+    assert "no structure selected: every fit failed" in str(sel.summary())
+
+
 # --------------------------------------------------------------------------- bad input
 
 
@@ -236,3 +247,17 @@ def test_bad_input_names_the_argument(system):
         hbjax.compare(model, v, y[:-1])
     with pytest.raises(ValueError, match="equal lengths"):
         hbjax.estimate_initial_state(model, v, y[:-1])
+    # beyond the estimators' magnitudes: refused, not a NaN fit
+    with pytest.raises(ValueError, match="`y` reaches a magnitude of"):
+        hbjax.compare(model, v, y * 1e200)
+
+
+def test_compare_ahead_promotes_float32_records_like_predict(system):
+    """float32 records with a float64 model: the k-step predictor runs in the promoted
+    dtype, as hbjax.predict does (its scan carry once mixed the two and raised)."""
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.size)))
+    for horizon in (1, 3):
+        f32 = hbjax.compare(model, v.astype(np.float32), y.astype(np.float32), horizon=horizon)
+        f64 = hbjax.compare(model, v, y, horizon=horizon)
+        assert f32.fit == pytest.approx(f64.fit, abs=1e-4)

@@ -40,6 +40,7 @@ from jaxtyping import Array, Float
 
 from . import residual_tests as rt
 from .decide import over_constant
+from .effect_base import EffectConstraint
 from .._core.arx import all_pole
 from .._core.model import AbstractModel, Hammerstein
 from .._misc import lag_sum, lagged
@@ -90,6 +91,33 @@ class MissingInput(AbstractModel):
     offset: Float[Array, ""]
     channel_names: tuple = eqx.field(static=True)
     name: ClassVar[str] = "missing_input"
+
+    def __check_init__(self):
+        # Held to the rules of the effects (the model-file reader runs this too): a file
+        # with a string for the base, a NaN channel sample or a zero scale is refused here,
+        # naming the field, not deep inside a simulation.
+        if not isinstance(self.base, Hammerstein):
+            raise TypeError("`MissingInput.base` must be an hbjax.Hammerstein, got "
+                            f"{type(self.base).__name__}.")
+        names = self.channel_names
+        if not (isinstance(names, tuple) and names
+                and all(isinstance(c, str) for c in names)):
+            raise TypeError("`MissingInput.channel_names` must be a non-empty tuple of "
+                            f"strings, got {names!r}.")
+        J = len(names)
+        shape = np.shape(self.signals)
+        if len(shape) != 2 or shape[0] < 1:
+            raise ValueError("`MissingInput.signals` must be a 2-D array (samples x "
+                             f"channels), got shape {shape}.")
+        T = shape[0]
+        rules = {"signals": EffectConstraint(shape=(T, J)),
+                 "center": EffectConstraint(shape=(J,)),
+                 "scale": EffectConstraint(shape=(J,), positive=True),
+                 "taps": EffectConstraint(shape=(J, LAGS + 1)),
+                 "slip": EffectConstraint(shape=(J,)),
+                 "gain": EffectConstraint(), "offset": EffectConstraint()}
+        for field, rule in rules.items():
+            rule.check(f"MissingInput.{field}", getattr(self, field), self.base)
 
     def _extension(self, y_lin):
         T, n = y_lin.shape[0], self.signals.shape[0]

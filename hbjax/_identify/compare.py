@@ -11,7 +11,7 @@ from .._core.initial import InitialState, estimate_initial_state, injection
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent_unchecked
-from .._misc import as_float_array, is_traced, lagged, same_length
+from .._misc import as_float_array, check_magnitude, float_dtype, is_traced, lagged, same_length
 from .recordings import as_input_output
 from .stable import INITIAL_STATES, check_initial_state, start_response  # noqa: F401
 
@@ -61,8 +61,12 @@ def predict_ahead(model: AbstractModel, v, y, horizon: int, *, u0=0.0, y0=None):
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`horizon` > 1 needs an hbjax.Hammerstein model, got "
                         f"{type(model).__name__}.")
-    y0 = None if y0 is None else jnp.asarray(y0, v.dtype)
-    return _ahead(model, v, y, horizon, jnp.asarray(u0, v.dtype), y0)
+    # one dtype for the scan's carry: float32 records with a float64 model run in float64,
+    # as hbjax.predict does
+    dtype = float_dtype(model, v, y)
+    v, y = jnp.asarray(v, dtype), jnp.asarray(y, dtype)
+    y0 = None if y0 is None else jnp.asarray(y0, dtype)
+    return _ahead(model, v, y, horizon, jnp.asarray(u0, dtype), y0)
 
 
 class Comparison(eqx.Module):
@@ -137,7 +141,8 @@ def _record(v, y):
         raise ValueError(f"`v` and `y` must hold at least 2 samples, got {v.shape[0]}.")
     if is_traced(v) or is_traced(y):
         raise TypeError("`compare` works on concrete recordings; it cannot be jit-compiled.")
-    return v, y, dt
+    # the fit's norms and the initial-state least squares overflow as the estimators' do
+    return check_magnitude(v, "v"), check_magnitude(y, "y"), dt
 
 
 def extension_state(model: AbstractModel, v, y):

@@ -31,7 +31,8 @@ class StructureSelection(eqx.Module):
       estimated (``nan`` without validation records).
     - `success`: whether :func:`hbjax.fit` converged; failed rows are ranked last.
     - `models`: the fitted models; `messages`: their result messages.
-    - `best`: the first row's ``(na, nb, m)``; `rank_by`: the ranking column.
+    - `best`: the first row's ``(na, nb, m)``, ``None`` when no fit succeeded (no
+      structure is selected from failed fits); `rank_by`: the ranking column.
     """
 
     orders: tuple
@@ -47,16 +48,18 @@ class StructureSelection(eqx.Module):
     criterion: str = eqx.field(static=True)
 
     @property
-    def best(self) -> tuple:
-        return self.orders[0]
+    def best(self) -> tuple | None:
+        return self.orders[0] if bool(self.success[0]) else None
 
     @property
-    def best_model(self) -> Hammerstein:
-        return self.models[0]
+    def best_model(self) -> Hammerstein | None:
+        return self.models[0] if bool(self.success[0]) else None
 
     def summary(self) -> str:
+        chosen = (f"best (na, nb, m) = {self.best}" if self.best is not None else
+                  "no structure selected: every fit failed (see the result column)")
         lines = [(f"select_structure: {len(self.orders)} structures, {self.criterion} criterion, "
-                 f"ranked by {self.rank_by}; best (na, nb, m) = {self.best}"),
+                 f"ranked by {self.rank_by}; {chosen}"),
                  (f"{'na':>3}{'nb':>4}{'m':>3}{'k':>4}{'loss':>12}{'BIC':>12}{'AIC':>12}"
                  f"{'val. fit %':>12}  result")]
         for (na, nb, m), k, loss, bic, aic, vf, msg in zip(
