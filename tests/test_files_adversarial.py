@@ -248,6 +248,35 @@ def test_effect_files_with_invalid_parameters_give_model_file_errors(
         hbjax.load_model(p)
 
 
+@pytest.mark.parametrize(
+    "field, value, match",
+    [
+        ("base", "hello", r"MissingInput\.base` must be an hbjax\.Hammerstein, got str"),
+        ("scale", {"array": [0.0], "dtype": "float64", "shape": [1]},
+         r"MissingInput\.scale` must be > 0"),
+        ("gain", {"float": "inf"}, r"MissingInput\.gain` must be finite"),
+        ("taps", {"array": [0.0] * 6, "dtype": "float64", "shape": [2, 3]},
+         r"MissingInput\.taps` must have shape \(1, 4\)"),
+        ("channel_names", 5, r"MissingInput\.channel_names` must be a non-empty tuple"),
+    ],
+)
+def test_missing_input_files_are_held_to_their_fields(tmp_path, field, value, match):
+    """The diagnosis's recorded-channel extension, as ``diagnose --save-model`` writes it:
+    an edited file is refused naming the field (it used to load and fail, or run, later)."""
+    from hbjax._diagnose.channels import MissingInput
+
+    n = 20
+    model = MissingInput(M, np.arange(n, dtype=float)[:, None], np.zeros(1), np.ones(1),
+                         np.zeros((1, 4)), np.zeros(1), np.asarray(0.0), np.asarray(0.0), ("w",))
+    doc = json.loads(hbjax.save_model(tmp_path / "mi.json", model).read_text())
+    doc["model"]["fields"][field] = value
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(doc))
+    with pytest.raises(hbjax.ModelFileError, match=match):
+        hbjax.load_model(p)
+    assert hbjax.load_model(tmp_path / "mi.json").channel_names == ("w",)
+
+
 def test_polynomial_degree_is_capped_and_evaluated_exactly():
     with pytest.raises(ValueError, match="at most m = 64"):
         hbjax.Backlash(np.ones(65), np.ones(65))
