@@ -106,6 +106,19 @@ def test_estimate_initial_state_recovers_truth(system):
     assert abs(float(s.u0) + 0.7) < 1e-8 and abs(float(s.y0[0]) - 2.0) < 1e-8
 
 
+@pytest.mark.parametrize("a", [[-1.2, 0.5], [-2.5, 1.0]], ids=["stable", "unstable"])
+def test_initial_state_cost_is_the_free_runs_squared_error(system, a):
+    """``cost`` is the squared error of the free run from the estimated state, also for an
+    unstable model whose free run is far off (it once cancelled to 0 there)."""
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.size)))
+    other = hbjax.Hammerstein(model.backlash, hbjax.ARX(a, model.arx.b))
+    s = hbjax.estimate_initial_state(other, v, y)
+    sse = float(np.sum((y - np.asarray(hbjax.simulate(other, v, u0=s.u0, y0=s.y0))) ** 2))
+    assert float(s.cost) == pytest.approx(sse, rel=1e-9)
+    assert sse > 0
+
+
 # --------------------------------------------------------------------------- compare
 
 

@@ -146,8 +146,13 @@ def _estimate(model: Hammerstein, v, y):
 
     candidates = jnp.stack([inside, beyond(hi, 1.0), beyond(lo, -1.0)])
     u_best = candidates[jnp.argmin(jax.vmap(lambda u: cost(u)[0])(candidates))]
-    c_best, res = cost(u_best)
-    return InitialState(solve(res), u_best, jnp.maximum(c_best, 0.0))
+    _, res = cost(u_best)
+    y0 = solve(res)
+    # The reported cost is the squared error of the free run hbjax.simulate gives from
+    # (y0, u0), not the search's ||res||^2 - ||proj||^2: that difference cancels to 0 where
+    # the free run is huge (an unstable model 1e15 off the data reported a cost of 0).
+    y_sim = model.simulate_trajectory(v, jnp.zeros_like(v), u_best, y0=y0)
+    return InitialState(y0, u_best, jnp.sum((y - y_sim) ** 2))
 
 
 def estimate_initial_state(model: Hammerstein, v, y) -> InitialState:
