@@ -347,3 +347,21 @@ def test_refined_estimator_improves_on_the_closed_form(system, design):
     assert refined.estimator == "refined" and refined.n_valid[0] >= 10
     ratio = (refined.rmse[0] / giri.rmse[0]) ** 2
     assert np.mean(ratio) < 0.9, dict(zip(refined.names, ratio))
+
+
+def test_one_realisation_gives_no_slope_interval():
+    """One draw per length measures no Monte Carlo uncertainty: the slope is the plain fit
+    and its interval is NaN (it was a zero-width interval)."""
+    rng = np.random.default_rng(0)
+    true = np.array([0.5, 2.0])
+    lengths = [100, 400, 1600]
+    est = true + rng.standard_normal((3, 1, 2)) / np.sqrt(np.array(lengths))[:, None, None]
+    study = hbjax.Study.from_estimates(
+        lengths, ["a1", "b1"], true, est, np.zeros((3, 1), int), keep_estimates=False,
+        compile_seconds=np.zeros(3), run_seconds=np.zeros(3), realisations=1,
+        noise_std=0.1, estimator="giri", noise="white", n_devices=1, chunk_size=1)
+    rmse = np.abs(est[:, 0, :] - true)
+    expected = [np.polyfit(np.log(lengths), np.log(rmse[:, p]), 1)[0] for p in range(2)]
+    np.testing.assert_allclose(study.slope, expected, rtol=1e-12)
+    assert np.all(np.isnan(study.slope_stderr)) and np.all(np.isnan(study.slope_ci))
+    assert np.all(np.isnan(study.std))

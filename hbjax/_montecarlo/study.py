@@ -14,17 +14,22 @@ def _slope_fit(lengths, rmse, mse_var):
     The weights are the inverse Monte Carlo variances of ``log RMSE`` (delta method,
     ``var(log RMSE) ~ var(e^2) / (4 R MSE^2)``), so the interval reflects how many
     realisations were run: a consistent, ``sqrt(N)``-rate estimator gives slopes near -1/2.
-    Returns ``(slope, stderr)``, NaN where fewer than two lengths have a positive RMSE.
+    Returns ``(slope, stderr)``, NaN where fewer than two lengths have a positive RMSE;
+    where some length has no Monte Carlo variance (fewer than two valid realisations), the
+    slope is the unweighted fit and ``stderr`` is NaN: one draw measures no uncertainty.
     """
     n_len, n_par = rmse.shape
     slope = np.full(n_par, np.nan)
     stderr = np.full(n_par, np.nan)
     x = np.log(np.asarray(lengths, float))
     for p in range(n_par):
-        ok = np.isfinite(rmse[:, p]) & (rmse[:, p] > 0) & np.isfinite(mse_var[:, p])
+        ok = np.isfinite(rmse[:, p]) & (rmse[:, p] > 0)
         if ok.sum() < 2 or np.ptp(x[ok]) == 0:
             continue
         y = np.log(rmse[ok, p])
+        if not np.all(np.isfinite(mse_var[ok, p])):
+            slope[p] = np.polyfit(x[ok], y, 1)[0]
+            continue
         var_log = mse_var[ok, p] / (4.0 * rmse[ok, p] ** 4)
         # A zero variance (e.g. one valid realisation) must not give an infinite weight.
         w = 1.0 / np.maximum(var_log, 1e-300)
@@ -100,6 +105,7 @@ class Study(eqx.Module):
                 axis=1
             ) / count / count
         empty = n_valid == 0
+        mse_var[n_valid < 2] = np.nan  # one realisation: no Monte Carlo variance
         mean[empty] = np.nan
         mse[empty] = np.nan
         std[n_valid < 2] = np.nan
