@@ -10,6 +10,7 @@ import os
 import pathlib
 import runpy
 import signal
+import stat
 import subprocess
 import sys
 
@@ -189,6 +190,21 @@ def test_long_file_names(tmp_path, length):
 
 
 # ----------------------------------------------------------------------------- model files
+
+
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o444])
+def test_overwrite_keeps_the_files_permissions(tmp_path, mode):
+    """A private (or read-only) file replaced with ``overwrite=True`` keeps its mode; it
+    came back world-readable 0644 (the temporary file's umask default)."""
+    p = hbjax.save_model(tmp_path / "m.json", M)
+    os.chmod(p, mode)
+    hbjax.save_model(p, M, overwrite=True)
+    assert stat.S_IMODE(os.stat(p).st_mode) == mode
+    rec = hbjax.Recording(v=np.arange(5.0), y=np.arange(5.0))
+    r = hbjax.save_recording(tmp_path / "r.csv", rec)
+    os.chmod(r, mode)
+    hbjax.save_recording(r, rec, overwrite=True)
+    assert stat.S_IMODE(os.stat(r).st_mode) == mode
 
 
 def test_model_file_cannot_name_hbjax_main_or_any_module(tmp_path):

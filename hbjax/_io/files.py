@@ -179,6 +179,12 @@ def _create_exclusive(p: pathlib.Path, payload: bytes, hint: str) -> None:
 
 def _publish(tmp: str, p: pathlib.Path, payload: bytes, overwrite: bool, hint: str) -> None:
     if overwrite:
+        # The replaced file's permissions carry over (a private 0600 model file stays
+        # private; the temporary file has the umask's default mode).
+        try:
+            os.chmod(tmp, stat.S_IMODE(os.stat(p).st_mode))
+        except FileNotFoundError:
+            pass
         os.replace(tmp, p)
         return
     try:
