@@ -207,6 +207,24 @@ def test_overwrite_keeps_the_files_permissions(tmp_path, mode):
     assert stat.S_IMODE(os.stat(r).st_mode) == mode
 
 
+@pytest.mark.parametrize("suffix", ["csv", "npz"])
+@pytest.mark.parametrize("columns", [{"input": "y", "output": "y"}, {"input": 0, "output": "v"},
+                                     {"input": "y"}])
+def test_one_column_is_never_both_input_and_output(tmp_path, suffix, columns):
+    rec = hbjax.Recording(v=np.arange(5.0), y=np.arange(5.0) ** 2)
+    p = hbjax.save_recording(tmp_path / f"r.{suffix}", rec)
+    with pytest.raises(ValueError, match="the input and the output are the same column"):
+        hbjax.load_recording(p, **columns)
+
+
+def test_cli_refuses_one_column_as_input_and_output(tmp_path):
+    p = hbjax.save_recording(tmp_path / "r.csv", hbjax.Recording(v=np.arange(50.0),
+                                                                 y=np.sin(np.arange(50.0))))
+    status, out, err = cli("identify", "fit", "--input", "y", "--output", "y", p,
+                           "--out", tmp_path / "m.json")
+    assert status != 0 and "same column" in err and not (tmp_path / "m.json").exists()
+
+
 def test_model_file_cannot_name_hbjax_main_or_any_module(tmp_path):
     text = hbjax.save_model(tmp_path / "m.json", M).read_text()
     before = set(sys.modules)

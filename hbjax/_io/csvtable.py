@@ -100,7 +100,22 @@ class CsvTable:
     def columns(self, keys, roles):
         """The float columns ``keys`` (``None`` entries give ``None``), all checked."""
         idx = [None if k is None else self.index(k, role) for k, role in zip(keys, roles)]
+        distinct_columns(self.path, {role: None if j is None else self.column_label(j)
+                                     for j, role in zip(idx, roles)})
         return [None if j is None else self.column(j) for j in idx]
+
+
+def distinct_columns(path, picked: dict) -> None:
+    """Refuse one column picked for two roles (``{role: column label or None}``): an output
+    read as its own input fits perfectly and means nothing."""
+    seen = {}
+    for role, label in picked.items():
+        if label is None:
+            continue
+        if label in seen:
+            raise ValueError(f"{path}: the {seen[label]} and the {role} are the same column "
+                             f"({label}); choose different columns.")
+        seen[label] = role
 
 
 # A decimal number as written by people and programs: ASCII digits, optional sign, point and

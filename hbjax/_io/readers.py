@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 
+from .csvtable import distinct_columns
+
 # Column names of the BRFD JSON layout (banded rotary friction device, see hbjax/data/README.md).
 BRFD_COLUMNS = (
     "time",
@@ -60,6 +62,13 @@ def read_npz(p, input, output, time):
                 raise ValueError(f"{p}: array {key!r} has NaN or inf at index {bad[0]}.")
             return arr
 
+        def name(key):
+            if isinstance(key, (int, np.integer)) and not isinstance(key, bool) and (
+                    -len(names) <= key < len(names)):
+                return f"array {names[key]!r}"
+            return None if key is None else f"array {key!r}"
+
+        distinct_columns(p, {"input": name(input), "output": name(output), "time": name(time)})
         cols = [get(input, "input"), get(output, "output"), get(time, "time")]
         file_dt = None
         if "dt" in names:
@@ -168,6 +177,8 @@ def read_brfd_json(p, input, output, time):
         index(2 if output is None else output, "output"),
         index(time, "time"),
     ]
+    distinct_columns(p, {role: None if j is None else f"column {BRFD_COLUMNS[j]!r}"
+                         for j, role in zip(idx, ("input", "output", "time"))})
     cols = []
     for j, role in zip(idx, ("input", "output", "time")):
         if j is None:
