@@ -199,6 +199,17 @@ def test_montecarlo_config_errors(tmp_path):
     assert "unknown config keys ['realisation']" in proc.stderr
     proc = run("montecarlo", "--config", "cfg.json", "--out", "cfg.json", cwd=tmp_path, check=False)
     assert proc.returncode == 1 and "would replace the config file" in proc.stderr
+    (tmp_path / "cfg.json").write_text(
+        '{"noise_std": 0.1, "lengths": [100], "realisations": 2, "seed": %d}' % 10**23)
+    proc = run("montecarlo", "--config", "cfg.json", "--out", "s.json", cwd=tmp_path, check=False)
+    assert proc.returncode == 1 and "`seed` must be in [0, 2**63)" in proc.stderr
+
+
+@pytest.mark.parametrize("seed", ["99999999999999999999", "-1", "1.5"])
+def test_seed_option_is_checked_by_name(tmp_path, seed):
+    proc = run("simulate", "--model", "m.json", "--input", "v.csv", "--out", "y.csv",
+               "--seed", seed, cwd=tmp_path, check=False)
+    assert proc.returncode == 2 and "argument --seed: must be" in proc.stderr
 
 
 @pytest.mark.slow

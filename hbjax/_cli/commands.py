@@ -14,6 +14,8 @@ def cmd_demo(args) -> int:
 
 # ----------------------------------------------------------------------------- helpers
 
+SEED_LIMIT = 2**63  # JAX's keys and NumPy's generators take seeds in [0, 2**63)
+
 
 def _column_key(key):
     """A ``--input``/``--output`` value: an int if it is one, else a header name."""

@@ -1,7 +1,7 @@
 """The ``hbjax montecarlo`` command: a study of the paper's experiments from a JSON
 config file (:func:`hbjax.monte_carlo`), written as JSON and optionally a figure."""
 
-from .commands import _check_outputs, _figure_bytes, _parse_design, _read_json, _write_all
+from .commands import SEED_LIMIT, _check_outputs, _figure_bytes, _parse_design, _read_json, _write_all
 
 MONTE_CARLO_KEYS = {
     "model": "a model file (path relative to the config) or \"default\" (hbjax.default_system())",
@@ -61,6 +61,8 @@ def _study_config(path):
         value = config.get(key, 0)
         if isinstance(value, bool) or not isinstance(value, int):
             raise ValueError(f"{path}: `{key}` must be an integer, got {value!r}.")
+    if not 0 <= config.get("seed", 0) < SEED_LIMIT:
+        raise ValueError(f"{path}: `seed` must be in [0, 2**63), got {config['seed']}.")
     if not isinstance(config.get("keep_estimates", False), bool):
         raise ValueError(f"{path}: `keep_estimates` must be true or false (a JSON boolean), got "
                          f"{config['keep_estimates']!r}.")

@@ -13,6 +13,7 @@ import sys
 import time
 
 from . import commands as commands
+from .commands import SEED_LIMIT
 from . import montecarlo as montecarlo
 
 _EPILOG_RECORDINGS = (
@@ -62,8 +63,20 @@ def _force(command, help="overwrite --out if it exists"):
     command.add_argument("--force", action="store_true", help=help)
 
 
+def seed_value(text: str) -> int:
+    """A ``--seed``: an integer in [0, 2**63) (a larger one overflowed deep inside JAX with
+    an error naming no option)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if not 0 <= value < SEED_LIMIT:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2**63), got {text}")
+    return value
+
+
 def _seed(command, what="the noise"):
-    command.add_argument("--seed", type=int, default=0, help=f"PRNG seed of {what}")
+    command.add_argument("--seed", type=seed_value, default=0, help=f"PRNG seed of {what}")
 
 
 def _design(command):
