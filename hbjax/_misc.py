@@ -33,8 +33,10 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None, host: b
             raise ValueError(
                 f"`{name}` must be a numeric array of regular shape, got a ragged sequence."
             ) from None
+        # (jnp.issubdtype also knows the ML float types NumPy does not, such as bfloat16)
         if arr.dtype == object or not (
             np.issubdtype(arr.dtype, np.number) or arr.dtype == bool
+            or jnp.issubdtype(arr.dtype, jnp.floating)
         ):
             raise TypeError(f"`{name}` must be a numeric array, got dtype {arr.dtype}.")
         if np.iscomplexobj(arr):

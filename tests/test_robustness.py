@@ -439,6 +439,7 @@ bad(EMPTY, "diagnose", ValueError, "record too short for `holdout`=0.3: 0 sample
 bad(NONFINITE, "diagnose", ValueError, "`y` contains NaN or inf \\(1 samples, first at index 0\\)", lambda t: hbjax.diagnose(M, V_D, with_nan(Y_D, 0)))
 bad(NONFINITE, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got nan", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=np.nan))
 bad(DTYPE, "diagnose", TypeError, "`v` must be real", lambda t: hbjax.diagnose(M, V_D + 0j, Y_D))
+bad(DTYPE, "diagnose", TypeError, "`channels\\['w'\\]` must be a numeric array, got str", lambda t: hbjax.diagnose(M, V_D, Y_D, channels={"w": "abc"}))
 bad(ORDER, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got 1.5", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=1.5))
 bad(ORDER, "diagnose", TypeError, "`holdout` must be a fraction in \\(0, 1\\), got True", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=True))
 bad(SHORT, "diagnose", ValueError, "record too short for `holdout`=0.3: 100 samples give 70 to fit", lambda t: hbjax.diagnose(M, V_D[:100], Y_D[:100]))
@@ -929,3 +930,14 @@ def _write_readme():
 
 if __name__ == "__main__":
     sys.exit(_write_readme())
+
+
+def test_bfloat16_inputs_are_numeric():
+    """An ML float type NumPy does not class as a number (bfloat16) is a float input: the
+    simulation runs in the promoted dtype (it was refused as "not numeric")."""
+    m32 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), M)
+    v = np.linspace(-5.0, 5.0, 50)
+    for x in (v.astype(jnp.bfloat16), jnp.asarray(v, jnp.bfloat16)):
+        y = hbjax.simulate(m32, x)
+        assert y.dtype == jnp.float32
+        np.testing.assert_allclose(y, hbjax.simulate(m32, np.asarray(x, np.float32)), rtol=1e-6)

@@ -43,7 +43,7 @@ from .decide import over_constant
 from .effect_base import EffectConstraint
 from .._core.arx import all_pole
 from .._core.model import AbstractModel, Hammerstein
-from .._misc import lag_sum, lagged
+from .._misc import as_float_array, lag_sum, lagged
 
 #: FIR lags 0..LAGS of a channel entering as a second input
 LAGS = 3
@@ -61,7 +61,7 @@ def check_channels(channels, n: int) -> dict:
                         f"{type(channels).__name__}.")
     out = {}
     for name, w in channels.items():
-        arr = np.asarray(w, dtype=np.float64)
+        arr = np.asarray(as_float_array(w, f"channels[{name!r}]", dtype=np.float64, host=True))
         if arr.ndim != 1 or arr.shape[0] != n:
             raise ValueError(f"channel {name!r} must be a 1-D array of the record's length "
                              f"{n}, got shape {arr.shape}.")
