@@ -210,6 +210,7 @@ bad(RANK, "ARX", ValueError, "`a` must be a 1-D array", lambda t: hbjax.ARX([[0.
 bad(RANK, "identify_giri", ValueError, "`y1` must be a 1-D array", lambda t: hbjax.identify_giri(D, records()[0][:, None], *records()[1:]))
 bad(RANK, "identify_giri", ValueError, "`v2` must be a 1-D array", lambda t: hbjax.identify_giri(D, *records(), v2=D.binary_input(T_GIRI)[None]))
 bad(RANK, "normalise", ValueError, "`h_m` must be a scalar", lambda t: hbjax.normalise(M, [4.0, 5.0]))
+bad(H_M_BAD, "normalise", ValueError, "overflows for `h_m` = 1e\\+200", lambda t: hbjax.normalise(M, 1e200))
 bad(RANK, "unflatten_params", ValueError, "`theta` must have shape \\(10,\\)", lambda t: hbjax.unflatten_params(M, THETA[None]))
 bad(RANK, "Recording", ValueError, "`v` must be a 1-D array", lambda t: hbjax.Recording(np.ones((3, 2)), np.ones((3, 2))))
 

@@ -109,14 +109,20 @@ def normalise(model: Hammerstein, h_m) -> Hammerstein:
     if is_traced(h_m) or any(is_traced(c) for c in (bl.c1, bl.c2)):
         mu = gauge_factor(bl.c1, bl.c2, h_m)
     else:  # concrete: in NumPy (the eager JAX polynomial was most of monte_carlo's set-up)
-        mu = jnp.asarray(gauge_factor(np.asarray(bl.c1), np.asarray(bl.c2), float(h_m)),
-                         h_m.dtype)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below
+            mu = jnp.asarray(gauge_factor(np.asarray(bl.c1), np.asarray(bl.c2), float(h_m)),
+                             h_m.dtype)
     if is_traced(mu):
         mu = eqx.error_if(mu, mu == 0, "mu = P2(-h_m) - P1(h_m) is 0: cannot normalise.")
     elif float(mu) == 0.0:
         raise ValueError(
             "mu = P2(-h_m) - P1(h_m) is 0 for this `model` and `h_m`: the normalisation "
             "(section 4.1) cannot be applied; the +-h_m swing must cross the backlash gap."
+        )
+    elif not math.isfinite(float(mu)):
+        raise ValueError(
+            f"mu = P2(-h_m) - P1(h_m) overflows for `h_m` = {float(h_m):g}: the branches "
+            "of `model` at +-h_m exceed float64; give h_m in the input's units."
         )
     return Hammerstein(Backlash(bl.c1 / mu, bl.c2 / mu), ARX(model.arx.a, model.arx.b * mu))
 
