@@ -302,7 +302,8 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     - `criterion`: ``"prediction"`` or ``"simulation"``.
     - `h_m`: amplitude of the paper's design, selects the normalisation (above).
     - `max_steps`, `rtol`, `atol`: Levenberg–Marquardt limits and tolerances (in the
-      scaled free parameters and residuals).
+      scaled free parameters and in residuals divided by the outputs' root mean square,
+      so that they mean the same in any unit of ``y``).
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data
       (default :data:`hbjax._identify.quality.SIM_FIT_FLOOR`, 0 %; below the default, the
       residual tests may accept a fit the noise explains, never below a raised floor).
