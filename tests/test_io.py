@@ -156,7 +156,9 @@ def test_csv_float_text_round_trips_exactly(tmp_path):
         ("", {}, r"empty"),
         ("\n# only a comment\n", {}, r"empty"),
         ("a,b\n", {}, r"header row but no data rows"),
-        ("a,b\n0,1\n1,2\n3,3\n", {"time": "a"}, r"not uniformly sampled"),
+        ("a,b,c\n0,1,2\n1,2,3\n3,3,4\n", {"time": "a", "input": "b", "output": "c"},
+         r"not uniformly sampled"),
+        ("a,b\n0,1\n1,2\n", {"time": "a"}, r"the input and the time are the same column"),
     ],
 )
 def test_csv_errors_name_row_and_column(tmp_path, text, kwargs, pattern):
@@ -194,11 +196,14 @@ def test_npz(tmp_path):
     np.testing.assert_array_equal(rec.y, [0.0, 1.0, 4.0, 9.0])
     assert rec.dt == 0.25
     q = tmp_path / "s.npz"
-    np.savez(q, drive=np.ones(3), response=np.array([1.0, np.nan, 2.0]))
-    assert hbjax.load_recording(q, output=0).y.shape == (3,)
+    np.savez(q, drive=np.ones(3), response=np.array([1.0, np.nan, 2.0]),
+             level=np.arange(3.0))
+    assert hbjax.load_recording(q, output=2).y.shape == (3,)
     with pytest.raises(ValueError, match=r"array 'response' has NaN or inf at index 1"):
         hbjax.load_recording(q)
-    with pytest.raises(ValueError, match=r"no input array named 'x'; arrays: \['drive', 'response'\]"):
+    with pytest.raises(ValueError, match=r"the input and the output are the same column"):
+        hbjax.load_recording(q, output=0)  # the default input is the first array too
+    with pytest.raises(ValueError, match=r"no input array named 'x'; arrays: \['drive', 'response', 'level'\]"):
         hbjax.load_recording(q, input="x")
     bad = write(tmp_path, "junk.npz", "not a zip")
     with pytest.raises(ValueError, match="not a readable .npz"):

@@ -23,14 +23,12 @@ from .._misc import check_bool, is_real_scalar, is_traced, positive_float, posit
 from .._results import RESULTS, code, raise_if_failed
 from .adequacy import LEVEL
 from .criteria import PREDICTION, lower_is_p1, sample_count
-from .parametrisation import PAPER, STATIC_GAIN
 from .quality import SIM_FIT_FLOOR
 from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
 from .refine_band import best_of_core_start, labelled_from
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
 from .stable import check_initial_state
-from .units import refine_in_unit
 
 __all__ = ("RESULTS", "RefineResult", "RefinementError", "gauge_transform",
            "make_parametrisation", "refine", "refine_batch", "refine_traceable")
@@ -74,24 +72,7 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     records' results from one program per bucket. Works under
     ``jax.jit`` and ``jax.vmap`` (e.g. over noise realisations with the inputs shared);
     see :func:`refine_batch`.
-
-    The solve runs on the outputs divided by their root mean square, and the result is
-    carried back to the recordings' unit (:mod:`hbjax._identify.units`): the estimate, its
-    fit and its standard errors do not depend on the unit of ``y``.
     """
-    def solve(start, scaled):
-        return _refine_unit_rms(start, scaled, criterion=criterion, h_m=h_m,
-                                max_steps=max_steps, rtol=rtol, atol=atol,
-                                statistics=statistics, min_sim_fit=min_sim_fit,
-                                initial_state=initial_state, stable=stable,
-                                core_start=core_start, core_only=core_only)
-
-    return refine_in_unit(solve, model, recordings, STATIC_GAIN if h_m is None else PAPER)
-
-
-def _refine_unit_rms(model, recordings, *, criterion, h_m, max_steps, rtol, atol, statistics,
-                     min_sim_fit, initial_state, stable, core_start, core_only):
-    """:func:`refine_traceable` on records whose outputs have unit root mean square."""
     par = make_parametrisation(model, recordings, h_m, stable=stable,
                                initial_state=initial_state)
     start, ok = gauge_transform(model, par)
@@ -302,8 +283,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     - `criterion`: ``"prediction"`` or ``"simulation"``.
     - `h_m`: amplitude of the paper's design, selects the normalisation (above).
     - `max_steps`, `rtol`, `atol`: Levenberg–Marquardt limits and tolerances (in the
-      scaled free parameters and in residuals divided by the outputs' root mean square,
-      so that they mean the same in any unit of ``y``).
+      scaled free parameters and residuals).
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data
       (default :data:`hbjax._identify.quality.SIM_FIT_FLOOR`, 0 %; below the default, the
       residual tests may accept a fit the noise explains, never below a raised floor).

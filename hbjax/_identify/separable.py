@@ -23,8 +23,6 @@ from .._results import RESULTS, raise_if_failed
 from .refine import check_gauge
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, residual_summary
-from .parametrisation import PAPER, STATIC_GAIN
-from .units import refine_in_unit
 
 
 def _regressors(theta_c, x, y, lower, na, nb):
@@ -62,16 +60,7 @@ def _constraint_basis(g):
 
 def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 256,
                         rtol: float = 1e-7, atol: float = 1e-7) -> RefineResult:
-    """Traceable core of :func:`separable_ls` (never raises; code in ``.result``); solved
-    on unit-RMS outputs, as refinement is (:mod:`hbjax._identify.units`)."""
-    def solve(start, scaled):
-        return _separable_unit_rms(start, scaled, h_m=h_m, max_steps=max_steps, rtol=rtol,
-                                   atol=atol)
-
-    return refine_in_unit(solve, model, recordings, STATIC_GAIN if h_m is None else PAPER)
-
-
-def _separable_unit_rms(model, recordings, *, h_m, max_steps, rtol, atol):
+    """Traceable core of :func:`separable_ls` (never raises; code in ``.result``)."""
     na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
     par = make_parametrisation(model, recordings, h_m)
     start, ok = gauge_transform(model, par)
