@@ -29,6 +29,7 @@ from .refine_band import best_of_core_start, labelled_from
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
 from .stable import check_initial_state
+from .units import in_unit, model_in_unit, output_unit, result_from_unit
 
 __all__ = ("RESULTS", "RefineResult", "RefinementError", "gauge_transform",
            "make_parametrisation", "refine", "refine_batch", "refine_traceable")
@@ -72,7 +73,21 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
     records' results from one program per bucket. Works under
     ``jax.jit`` and ``jax.vmap`` (e.g. over noise realisations with the inputs shared);
     see :func:`refine_batch`.
+
+    The solve runs on the outputs in their own unit (:mod:`hbjax._identify.units`), so
+    that its tolerances and the covariance do not depend on the unit of ``y``.
     """
+    unit = output_unit(recordings)
+    res = _refine_in_unit(model_in_unit(model, unit), in_unit(recordings, unit),
+                          criterion=criterion, h_m=h_m, max_steps=max_steps, rtol=rtol,
+                          atol=atol, statistics=statistics, min_sim_fit=min_sim_fit,
+                          initial_state=initial_state, stable=stable, core_start=core_start,
+                          core_only=core_only)
+    return result_from_unit(res, unit)
+
+
+def _refine_in_unit(model, recordings, *, criterion, h_m, max_steps, rtol, atol, statistics,
+                    min_sim_fit, initial_state, stable, core_start, core_only):
     par = make_parametrisation(model, recordings, h_m, stable=stable,
                                initial_state=initial_state)
     start, ok = gauge_transform(model, par)
@@ -283,7 +298,8 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     - `criterion`: ``"prediction"`` or ``"simulation"``.
     - `h_m`: amplitude of the paper's design, selects the normalisation (above).
     - `max_steps`, `rtol`, `atol`: Levenberg–Marquardt limits and tolerances (in the
-      scaled free parameters and residuals).
+      scaled free parameters and in residuals divided by the outputs' unit, the power of
+      two nearest above their largest magnitude: they mean the same in any unit of ``y``).
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data
       (default :data:`hbjax._identify.quality.SIM_FIT_FLOOR`, 0 %; below the default, the
       residual tests may accept a fit the noise explains, never below a raised floor).

@@ -22,6 +22,7 @@ from .recordings import as_recordings, check_h_m, check_model, total_samples
 from .._results import RESULTS, raise_if_failed
 from .refine import check_gauge
 from .refine_result import RefinementError, RefineResult, finish, summarise
+from .units import in_unit, model_in_unit, output_unit, result_from_unit
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, residual_summary
 
 
@@ -60,7 +61,15 @@ def _constraint_basis(g):
 
 def separable_traceable(model: Hammerstein, recordings, *, h_m=None, max_steps: int = 256,
                         rtol: float = 1e-7, atol: float = 1e-7) -> RefineResult:
-    """Traceable core of :func:`separable_ls` (never raises; code in ``.result``)."""
+    """Traceable core of :func:`separable_ls` (never raises; code in ``.result``); solved
+    on the outputs in their own unit as :func:`hbjax._identify.refine.refine_traceable`."""
+    unit = output_unit(recordings)
+    res = _separable_in_unit(model_in_unit(model, unit), in_unit(recordings, unit), h_m=h_m,
+                             max_steps=max_steps, rtol=rtol, atol=atol)
+    return result_from_unit(res, unit)
+
+
+def _separable_in_unit(model, recordings, *, h_m, max_steps, rtol, atol):
     na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
     par = make_parametrisation(model, recordings, h_m)
     start, ok = gauge_transform(model, par)

@@ -1,0 +1,101 @@
+"""Refinement does not depend on the unit of the output.
+
+Random systems of the paper's class from the independent generator (``tests.generators``),
+random inputs, an output unit drawn log-uniformly over 1e-9..1e9: the refined model, its
+free-run fit, its standard errors and its result code are those of the same records in
+units, carried by the unit. (The solver's tolerances are absolute; before the output was
+taken to its own unit a record in micro-units stopped at its start and said "success", and
+one in mega-units halved its standard errors.)
+"""
+
+import numpy as np
+import pytest
+
+import hbjax
+from tests.generators.paper_class import (
+    INPUT_KINDS, random_input, random_paper_system, simulate_numpy, to_hbjax,
+)
+
+
+def _case(seed):
+    rng = np.random.default_rng(seed)
+    sys = random_paper_system(rng, m=int(rng.integers(2, 4)))
+    v = random_input(rng, INPUT_KINDS[seed % len(INPUT_KINDS)], 500, 1.5 * sys["h_m"])
+    y0, _ = simulate_numpy(sys, v)
+    y, _ = simulate_numpy(sys, v, 0.02 * np.std(y0) * rng.standard_normal(v.size))
+    true = to_hbjax(sys)
+    start = hbjax.Hammerstein(
+        hbjax.Backlash(np.asarray(true.backlash.c1) * rng.uniform(0.9, 1.1, sys["m"]),
+                       np.asarray(true.backlash.c2) * rng.uniform(0.9, 1.1, sys["m"])),
+        hbjax.ARX(np.asarray(true.arx.a) * rng.uniform(0.95, 1.05, sys["na"]),
+                  np.asarray(true.arx.b) * rng.uniform(0.9, 1.1, sys["nb"])))
+    unit = float(10.0 ** rng.uniform(-9, 9))
+    return sys, v, y, start, unit
+
+
+def _in_unit(model, unit):
+    bl = model.backlash
+    return hbjax.Hammerstein(hbjax.Backlash(np.asarray(bl.c1) * unit, np.asarray(bl.c2) * unit),
+                             model.arx)
+
+
+def _unit_weights(res, unit):
+    """Per flattened parameter, the power of the output unit it carries in `res`'s gauge."""
+    na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
+    w = np.ones(na + nb + 2 * m)
+    if res.gauge == "paper":
+        w[na:na + nb] = unit
+    else:
+        w[na + nb:] = unit
+    return w
+
+
+def _assert_same_up_to_unit(base, scaled, unit):
+    assert str(base.result) == str(scaled.result), (base.message, scaled.message)
+    assert float(scaled.sim_fit_pooled) == pytest.approx(float(base.sim_fit_pooled), abs=1e-5)
+    w = _unit_weights(base, unit)
+    theta, theta_u = np.asarray(hbjax.flatten_params(base.model)), np.asarray(
+        hbjax.flatten_params(scaled.model)) / w
+    np.testing.assert_allclose(theta_u, theta, rtol=1e-5, atol=1e-7 * np.max(np.abs(theta)))
+    assert base.unidentified == scaled.unidentified
+    ok = np.isfinite(np.asarray(base.std))
+    np.testing.assert_allclose(np.asarray(scaled.std)[ok] / w[ok], np.asarray(base.std)[ok],
+                               rtol=1e-4)
+    assert float(scaled.noise_std) / unit == pytest.approx(float(base.noise_std), rel=1e-6)
+    assert float(scaled.stats["cost"]) / unit**2 == pytest.approx(float(base.stats["cost"]),
+                                                                  rel=1e-6)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+@pytest.mark.parametrize("gauge", ["static_gain", "paper"])
+def test_refine_is_the_same_in_any_output_unit(seed, gauge):
+    sys, v, y, start, unit = _case(seed)
+    h_m = sys["h_m"] if gauge == "paper" else None
+    base = hbjax.refine(start, (v, y), h_m=h_m, throw=False)
+    scaled = hbjax.refine(_in_unit(start, unit), (v, y * unit), h_m=h_m, throw=False)
+    assert base.gauge == gauge
+    assert base.result == hbjax.RESULTS.successful, base.message
+    assert int(scaled.stats["steps"]) >= 2  # it moved from its start (it did not, in 1e-6)
+    _assert_same_up_to_unit(base, scaled, unit)
+
+
+@pytest.mark.parametrize("seed", [21, 22])
+def test_separable_ls_is_the_same_in_any_output_unit(seed):
+    _, v, y, start, unit = _case(seed)
+    base = hbjax.separable_ls(start, (v, y), throw=False)
+    scaled = hbjax.separable_ls(_in_unit(start, unit), (v, y * unit), throw=False)
+    assert base.result == hbjax.RESULTS.successful, base.message
+    _assert_same_up_to_unit(base, scaled, unit)
+
+
+@pytest.mark.parametrize("unit", [1e-7, 1e7])
+def test_fit_is_the_same_in_any_output_unit(unit):
+    import jax
+
+    sys, v, y, _, _ = _case(31)
+    options = dict(na=sys["na"], nb=sys["nb"], m=sys["m"], key=jax.random.key(0), starts=8,
+                   throw=False, progress=False)
+    base = hbjax.fit((v, y), **options)
+    scaled = hbjax.fit((v, y * unit), **options)
+    assert base.result == hbjax.RESULTS.successful, base.message
+    _assert_same_up_to_unit(base, scaled, unit)
