@@ -37,7 +37,8 @@ def read_npz(p, input, output, time):
         if time is None and "t" in names and {"v", "y"} <= set(names):
             time = None  # times are only used when asked for; dt below covers the usual case
 
-        def get(key, role):
+        def resolve(key, role):
+            """The array name that `key` (a name or an index) selects for `role`."""
             if key is None:
                 return None
             if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
@@ -48,6 +49,11 @@ def read_npz(p, input, output, time):
                 key = names[key]
             if key not in names:
                 raise ValueError(f"{p}: no {role} array named {key!r}; arrays: {names}.")
+            return key
+
+        def load(key):
+            if key is None:
+                return None
             arr = _npz_array(archive, key, p)
             if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.number):
                 raise ValueError(
@@ -62,14 +68,11 @@ def read_npz(p, input, output, time):
                 raise ValueError(f"{p}: array {key!r} has NaN or inf at index {bad[0]}.")
             return arr
 
-        def name(key):
-            if isinstance(key, (int, np.integer)) and not isinstance(key, bool) and (
-                    -len(names) <= key < len(names)):
-                return f"array {names[key]!r}"
-            return None if key is None else f"array {key!r}"
-
-        distinct_columns(p, {"input": name(input), "output": name(output), "time": name(time)})
-        cols = [get(input, "input"), get(output, "output"), get(time, "time")]
+        keys = {role: resolve(key, role)
+                for role, key in (("input", input), ("output", output), ("time", time))}
+        distinct_columns(p, {role: None if key is None else f"array {key!r}"
+                             for role, key in keys.items()})
+        cols = [load(keys["input"]), load(keys["output"]), load(keys["time"])]
         file_dt = None
         if "dt" in names:
             raw = _npz_array(archive, "dt", p)
