@@ -27,8 +27,9 @@ import numpy as np  # noqa: E402
 import hbjax  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-from tests.generators.paper_class import (  # noqa: E402
-    INPUT_KINDS, random_input, random_paper_system, simulate_numpy, to_hbjax,
+from tests.generators.paper_class import INPUT_KINDS  # noqa: E402
+from tests.generators.paper_runs import (  # noqa: E402
+    ordinary_record_and_start, output_unit_weights,
 )
 
 
@@ -61,31 +62,13 @@ def default_table():
               f"{float(sep.std[0]):.3g} |")
 
 
-def weights(res, unit):
-    na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
-    w = np.ones(na + nb + 2 * m)
-    if res.gauge == "paper":
-        w[na:na + nb] = unit
-    else:
-        w[na + nb:] = unit
-    return w
-
-
 def random_systems(count):
     differ = {"result": 0, "fit": 0, "std": 0}
     worst_fit = 0.0
     for seed in range(count):
         rng = np.random.default_rng(1000 + seed)
-        sys_ = random_paper_system(rng, m=int(rng.integers(2, 5)))
-        v = random_input(rng, INPUT_KINDS[seed % len(INPUT_KINDS)], 800, 1.5 * sys_["h_m"])
-        y0, _ = simulate_numpy(sys_, v)
-        y, _ = simulate_numpy(sys_, v, 0.02 * np.std(y0) * rng.standard_normal(v.size))
-        true = to_hbjax(sys_)
-        start = hbjax.Hammerstein(
-            hbjax.Backlash(np.asarray(true.backlash.c1) * rng.uniform(0.9, 1.1, sys_["m"]),
-                           np.asarray(true.backlash.c2) * rng.uniform(0.9, 1.1, sys_["m"])),
-            hbjax.ARX(np.asarray(true.arx.a) * rng.uniform(0.95, 1.05, sys_["na"]),
-                      np.asarray(true.arx.b) * rng.uniform(0.9, 1.1, sys_["nb"])))
+        sys_, v, y, start = ordinary_record_and_start(
+            rng, T=800, kind=INPUT_KINDS[seed % len(INPUT_KINDS)], m=int(rng.integers(2, 5)))
         unit = float(10.0 ** rng.uniform(-9, 9))
         h_m = sys_["h_m"] if seed % 2 else None
         base = hbjax.refine(start, (v, y), h_m=h_m, throw=False)
@@ -96,7 +79,7 @@ def random_systems(count):
         differ["fit"] += gap > 1e-4
         # (a coefficient the gauge fixes, b_1 with nb = 1, has std 0 in every unit)
         ok = np.isfinite(np.asarray(base.std)) & (np.asarray(base.std) > 0)
-        rel = np.abs(np.asarray(other.std)[ok] / weights(base, unit)[ok]
+        rel = np.abs(np.asarray(other.std)[ok] / output_unit_weights(base, unit)[ok]
                      / np.asarray(base.std)[ok] - 1)
         if np.any(rel > 1e-3):
             differ["std"] += 1

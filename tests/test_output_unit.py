@@ -12,25 +12,15 @@ import numpy as np
 import pytest
 
 import hbjax
-from tests.generators.paper_class import (
-    INPUT_KINDS, random_input, random_paper_system, simulate_numpy, to_hbjax,
-)
+from tests.generators.paper_class import INPUT_KINDS
+from tests.generators.paper_runs import ordinary_record_and_start, output_unit_weights
 
 
 def _case(seed):
     rng = np.random.default_rng(seed)
-    sys = random_paper_system(rng, m=int(rng.integers(2, 4)))
-    v = random_input(rng, INPUT_KINDS[seed % len(INPUT_KINDS)], 500, 1.5 * sys["h_m"])
-    y0, _ = simulate_numpy(sys, v)
-    y, _ = simulate_numpy(sys, v, 0.02 * np.std(y0) * rng.standard_normal(v.size))
-    true = to_hbjax(sys)
-    start = hbjax.Hammerstein(
-        hbjax.Backlash(np.asarray(true.backlash.c1) * rng.uniform(0.9, 1.1, sys["m"]),
-                       np.asarray(true.backlash.c2) * rng.uniform(0.9, 1.1, sys["m"])),
-        hbjax.ARX(np.asarray(true.arx.a) * rng.uniform(0.95, 1.05, sys["na"]),
-                  np.asarray(true.arx.b) * rng.uniform(0.9, 1.1, sys["nb"])))
-    unit = float(10.0 ** rng.uniform(-9, 9))
-    return sys, v, y, start, unit
+    sys, v, y, start = ordinary_record_and_start(
+        rng, T=500, kind=INPUT_KINDS[seed % len(INPUT_KINDS)], m=int(rng.integers(2, 4)))
+    return sys, v, y, start, float(10.0 ** rng.uniform(-9, 9))
 
 
 def _in_unit(model, unit):
@@ -39,21 +29,10 @@ def _in_unit(model, unit):
                              model.arx)
 
 
-def _unit_weights(res, unit):
-    """Per flattened parameter, the power of the output unit it carries in `res`'s gauge."""
-    na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
-    w = np.ones(na + nb + 2 * m)
-    if res.gauge == "paper":
-        w[na:na + nb] = unit
-    else:
-        w[na + nb:] = unit
-    return w
-
-
 def _assert_same_up_to_unit(base, scaled, unit):
     assert str(base.result) == str(scaled.result), (base.message, scaled.message)
     assert float(scaled.sim_fit_pooled) == pytest.approx(float(base.sim_fit_pooled), abs=1e-5)
-    w = _unit_weights(base, unit)
+    w = output_unit_weights(base, unit)
     theta, theta_u = np.asarray(hbjax.flatten_params(base.model)), np.asarray(
         hbjax.flatten_params(scaled.model)) / w
     np.testing.assert_allclose(theta_u, theta, rtol=1e-5, atol=1e-7 * np.max(np.abs(theta)))

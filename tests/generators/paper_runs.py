@@ -38,3 +38,41 @@ def reproduce(system, level, draw, *, seed, levels, draws, T):
             if lv == level and d == draw:
                 return (sys_, *paper_records(sys_, run_rng, level, T))
     raise ValueError(f"no run ({system}, {level}, {draw}) in levels {levels} x {draws} draws")
+
+
+def ordinary_record_and_start(rng, *, T, kind, m=None, noise=0.02, c_off=0.1, a_off=0.05):
+    """``(system, v, y, start)``: a random paper-class system (branch degree `m`, random
+    if ``None``), one ordinary input of ``T`` samples of `kind`
+    (:data:`tests.generators.paper_class.INPUT_KINDS`) with peak ``1.5 h_m``, equation
+    noise of std `noise` x the noise-free output's spread, and a start off the truth: the
+    branch coefficients by up to `c_off`, ``a`` by up to `a_off`, ``b`` by up to `c_off`
+    (relative, uniform, each coefficient on its own)."""
+    from .paper_class import random_input, to_hbjax
+
+    sys_ = random_paper_system(rng, m=m)
+    v = random_input(rng, kind, T, 1.5 * sys_["h_m"])
+    y0, _ = simulate_numpy(sys_, v)
+    y, _ = simulate_numpy(sys_, v, noise * np.std(y0) * rng.standard_normal(v.size))
+    true = to_hbjax(sys_)
+
+    def off(x, size):
+        return np.asarray(x) * rng.uniform(1 - size, 1 + size, np.shape(x))
+
+    start = hbjax.Hammerstein(
+        hbjax.Backlash(off(true.backlash.c1, c_off), off(true.backlash.c2, c_off)),
+        hbjax.ARX(off(true.arx.a, a_off), off(true.arx.b, c_off)))
+    return sys_, v, y, start
+
+
+def output_unit_weights(result, unit):
+    """Per flattened parameter (``a, b, c1, c2``) of a refinement `result`, the factor an
+    output unit puts on it: ``b`` carries the unit in the paper's gauge
+    (``P2(-h_m) - P1(h_m) = 1`` fixes the branches), the branches in the static-gain gauge
+    (``B(1) = 1`` fixes ``b``); ``a`` never."""
+    na, nb, m = result.model.arx.na, result.model.arx.nb, result.model.backlash.m
+    w = np.ones(na + nb + 2 * m)
+    if result.gauge == "paper":
+        w[na:na + nb] = unit
+    else:
+        w[na + nb:] = unit
+    return w
