@@ -77,7 +77,8 @@ def check_finite(x: jax.Array, name: str) -> jax.Array:
 
 
 # Squares of the samples enter every least-squares sum: beyond about 1e154 they overflow
-# float64. 1e100 leaves room for the sums over long records and the polynomial powers.
+# float64. 1e100 leaves room for the sums over long records and the polynomial powers; its
+# inverse is the floor below which the squares underflow (a nonzero peak under 1e-100).
 MAX_MAGNITUDE = 1e100
 
 
@@ -93,6 +94,12 @@ def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE):
             f"squares, which overflow float64 beyond about 1e154: rescale `{name}` (and the "
             f"model) to units where its samples stay below {limit:.0e}."
         )
+    if 0.0 < peak < 1.0 / limit:
+        raise ValueError(
+            f"`{name}` reaches a magnitude of only {peak:.3g}; the estimators' variances are "
+            f"squares of it, which underflow to 0 below about 1e-154: rescale `{name}` (and "
+            f"the model) to units where its largest sample is above {1.0 / limit:.0e}."
+        )
     return x
 
 
@@ -101,7 +108,8 @@ def check_values(x, name: str, limit: float = MAX_MAGNITUDE):
     two reductions (max and min, which NaN and inf fail), not the four passes of the two."""
     if not is_traced(x) and np.size(x):
         arr = np.asarray(x)
-        if max(float(np.max(arr)), -float(np.min(arr))) <= limit:  # (False for NaN)
+        peak = max(float(np.max(arr)), -float(np.min(arr)))
+        if peak <= limit and (peak == 0.0 or peak >= 1.0 / limit):  # (False for NaN)
             return x
     return check_magnitude(check_finite(x, name), name, limit)
 

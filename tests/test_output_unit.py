@@ -78,3 +78,14 @@ def test_fit_is_the_same_in_any_output_unit(unit):
     scaled = hbjax.fit((v, y * unit), **options)
     assert base.result == hbjax.RESULTS.successful, base.message
     _assert_same_up_to_unit(base, scaled, unit)
+
+
+def test_an_output_too_small_for_its_squares_is_refused_by_name():
+    # Below 1e-100 the variances (squares) underflow to 0: a std of 0 would read as exact.
+    _, v, y, start, _ = _case(11)
+    with pytest.raises(ValueError, match=r"`recordings y` reaches a magnitude of only"):
+        hbjax.refine(start, (v, y * 1e-120))
+    with pytest.raises(ValueError, match=r"`y` reaches a magnitude of only"):
+        hbjax.diagnose(start, v, y * 1e-120)
+    # an output that is exactly zero is not a unit problem (it is refused elsewhere, or fits)
+    assert hbjax.refine(start, (v, np.zeros_like(y)), throw=False).result is not None

@@ -147,6 +147,7 @@ RANK = "wrong rank or shape"
 LENGTH = "length mismatch"
 EMPTY = "empty array"
 NONFINITE = "NaN or inf"
+MAGNITUDE = "samples whose squares overflow or underflow float64 (beyond 1e100, below 1e-100)"
 DTYPE = "refused dtype (complex, object, text)"
 ORDER = "non-integer or negative order / count"
 H_M_BAD = "h_m <= 0 or not a number"
@@ -395,6 +396,9 @@ bad(NONFINITE, "refine", ValueError, "`recordings y` contains NaN or inf \\(1 sa
 bad(NONFINITE, "fit", ValueError, "`recordings v` contains NaN or inf", lambda t: fit((with_nan(V_R, 0, np.inf), Y_R)))
 bad(NONFINITE, "crlb", ValueError, "`noise_std` must be a finite number > 0, got nan", lambda t: hbjax.crlb(MN, REC, noise_std=np.nan, h_m=H_M))
 bad(NONFINITE, "refine", ValueError, "`rtol`", lambda t: hbjax.refine(MN, REC, h_m=H_M, rtol=np.nan))
+bad(MAGNITUDE, "refine", ValueError, "`recordings y` reaches a magnitude of only [0-9.]+e-1[0-9][0-9]; the estimators' variances", lambda t: hbjax.refine(MN, (V_R, Y_R * 1e-150)))
+bad(MAGNITUDE, "refine", ValueError, "`recordings y` reaches a magnitude of [0-9.]+e\\+1[0-9][0-9]; the estimators form sums of squares", lambda t: hbjax.refine(MN, (V_R, Y_R * 1e150)))
+bad(MAGNITUDE, "fit", ValueError, "`recordings y` reaches a magnitude of only", lambda t: hbjax.fit((V_R, Y_R * 1e-150), na=2, nb=2, m=3, key=KEY0))
 bad(NONFINITE, "crlb", ValueError, "`recordings y` contains NaN or inf", lambda t: hbjax.crlb(MN, (V_R, with_nan(Y_R)), noise_std=0.1, h_m=H_M))
 bad(DTYPE, "refine", TypeError, "`recordings y` must be real", lambda t: hbjax.refine(MN, (V_R, Y_R + 0j)))
 bad(ORDER, "fit", ValueError, "`na` must be an integer >= 0, got -1", lambda t: fit(na=-1))

@@ -24,6 +24,7 @@ from .._core.progress import check_progress, progress_bar
 from .._misc import check_bool, check_key, is_traced, positive_int
 from .._core.precision import require_x64
 from .criteria import data_scale
+from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
     arx_given_backlash, canonical_labels, closing_band, closing_count, closing_positions,
     random_backlash, swap_covariance, swap_perm,
@@ -118,6 +119,17 @@ def polish_best(res: "FitResult", recordings, *, criterion, max_steps, min_sim_f
     The refined start replaces the best one where it succeeds with a lower cost (or none
     had succeeded). Traceable; :func:`fit` compiles it on its own, and runs it only where
     it can change the result."""
+    return polished_best(res, recordings, criterion=criterion, max_steps=max_steps,
+                         min_sim_fit=min_sim_fit, initial_state=initial_state, rtol=rtol,
+                         atol=atol)[0]
+
+
+def polished_best(res: "FitResult", recordings, *, criterion, max_steps, min_sim_fit,
+                  initial_state, rtol=1e-7, atol=1e-7, margin=-1e-9):
+    """``(result, taken)``: :func:`polish_best`'s result and whether the refined start
+    replaced the best one (a success whose cost is below ``(1 + margin)`` times the best
+    start's, or any success where none had succeeded). The refinement is in the
+    static-gain gauge ``B(1) = 1`` whatever the gauge of `res`."""
     na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
     best = res.best_index
     polished = refine_traceable(res.model, recordings, criterion=criterion, h_m=None,
@@ -126,7 +138,7 @@ def polish_best(res: "FitResult", recordings, *, criterion, max_steps, min_sim_f
                                 stable=True, core_start=True)
     ok = res.starts_result == result_code(RESULTS.successful)
     take = (polished.result == RESULTS.successful) & (
-        ~ok[best] | (polished.stats["cost"] < res.starts_costs[best] * (1 - 1e-9)))
+        ~ok[best] | (polished.stats["cost"] < res.starts_costs[best] * (1 + margin)))
     new = _chosen(polished, recordings, na, nb, m)
     old = {k: getattr(res, k) for k in new}
     fields = jax.tree_util.tree_map(lambda a, b: jnp.where(take, a, b), new, old)
@@ -137,7 +149,7 @@ def polish_best(res: "FitResult", recordings, *, criterion, max_steps, min_sim_f
     codes = res.starts_result.at[best].set(result_code(fields["result"]))
     spread, hit_rate = _starts_summary(ok, costs, params, best)
     return dataclasses.replace(res, **fields, starts_costs=costs, starts_params=params,
-                               starts_result=codes, spread=spread, hit_rate=hit_rate)
+                               starts_result=codes, spread=spread, hit_rate=hit_rate), take
 
 
 def _score(res):
@@ -162,8 +174,14 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
                   criterion: str = "prediction", max_steps: int = 256,
                   rtol: float = 1e-7, atol: float = 1e-7,
                   min_sim_fit: float = SIM_FIT_FLOOR,
-                  initial_state: str = "estimate", polish: bool = True) -> FitResult:
+                  initial_state: str = "estimate", polish: bool = True,
+                  level: float | None = None) -> FitResult:
     """Traceable core of :func:`fit` (recordings a tuple of ``(v, y)`` arrays).
+
+    ``level=None`` solves every start in the static-gain gauge ``B(1) = 1``; a number
+    solves them in the paper's gauge ``P2(-h) - P1(h) = 1`` at ``h = level max|v|``
+    instead (:mod:`hbjax._identify.fit_gauge`: where the data put ``B(1)`` near 0), the
+    local optima in `starts_params` still in ``B(1) = 1``.
 
     ``polish=False`` leaves out the best start's refinement with the core operator's solve
     (:func:`polish_best`), which changes nothing unless the best start's branches meet
@@ -175,9 +193,11 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
     skip = max(na, nb) if initial_state == "estimate" else 0
     n_close = closing_count(starts, m)
 
+    h_m = None if level is None else level * scale
+
     def refined(init, core_only):
         return refine_traceable(
-            init, recordings, criterion=criterion, h_m=None, max_steps=max_steps,
+            init, recordings, criterion=criterion, h_m=h_m, max_steps=max_steps,
             rtol=rtol, atol=atol, statistics=False, min_sim_fit=min_sim_fit,
             initial_state=initial_state, stable=True, core_only=core_only)
 
@@ -215,14 +235,16 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
                           (keys, positions, jnp.arange(starts)))
 
     ok, costs, best = _best_start(res)
-    params = jax.vmap(lambda mdl: flatten_params(canonical_labels(mdl, recordings)[0]))(
+    # (the optima of the paper's gauge listed in B(1) = 1, as the result is reported)
+    form = (lambda mdl: mdl) if level is None else static_gain_form
+    params = jax.vmap(lambda mdl: flatten_params(canonical_labels(form(mdl), recordings)[0]))(
         res.model)
     spread, hit_rate = _starts_summary(ok, costs, params, best)
     out = FitResult(
         **_chosen(jax.tree_util.tree_map(lambda x: x[best], res), recordings, na, nb, m),
         starts_costs=costs, starts_params=params, starts_result=result_code(res.result),
         spread=spread, hit_rate=hit_rate, best_index=best, criterion=criterion,
-        gauge="static_gain", initial_state=initial_state)
+        gauge="static_gain" if level is None else "paper", initial_state=initial_state)
     if polish:
         out = polish_best(out, recordings, criterion=criterion, max_steps=max_steps,
                           rtol=rtol, atol=atol, min_sim_fit=min_sim_fit,
@@ -232,6 +254,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
 
 _fit_jit = eqx.filter_jit(fit_traceable)
 _polish_jit = eqx.filter_jit(polish_best)
+_polished_jit = eqx.filter_jit(polished_best)
 
 
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
@@ -264,7 +287,11 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
 
     Normalisation (no ``h_m`` is needed): ``B(1) = b_1 + ... + b_nb = 1`` (all the static
     gain in the backlash, assumption A5), and ``P1`` is the branch a rising input drives
-    the output onto (:func:`canonical_labels`). Compare with a true model through
+    the output onto (:func:`canonical_labels`). Where the best optimum has almost no static
+    gain (``|B(1)| < 0.05 sum |b|``), that normalisation is badly scaled for the search and
+    the starts are solved a second time in the paper's gauge, the better optimum then
+    reported in ``B(1) = 1`` (:mod:`hbjax._identify.fit_gauge`; ``hit_rate`` and the
+    starts' fields then describe that pass). Compare with a true model through
     :func:`hbjax.normalise_static_gain`; map to the paper's normalisation with
     :func:`hbjax.normalise` when ``h_m`` is known.
 
@@ -325,6 +352,8 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
             res = _polish_jit(res, recs, criterion=criterion, max_steps=max_steps,
                               min_sim_fit=options["min_sim_fit"],
                               initial_state=initial_state)
+        if not traced and gain_vanishes(res.model):
+            res = better_in_paper_gauge(res, recs, key, _fit_jit, _polished_jit, options)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
@@ -347,5 +376,11 @@ def normalise_static_gain(model: Hammerstein) -> Hammerstein:
     if not is_traced(gain) and float(gain) == 0.0:
         raise ValueError("`model` has B(1) = sum(b) = 0: the static-gain normalisation "
                          "cannot be applied (assumption A5).")
+    return static_gain_form(model)
+
+
+def static_gain_form(model: Hammerstein) -> Hammerstein:
+    """``(A, B / B(1), P * B(1))`` without checks (traceable; ``B(1) = 0`` gives inf)."""
+    gain = jnp.sum(model.arx.b)
     bl = model.backlash
     return Hammerstein(Backlash(bl.c1 * gain, bl.c2 * gain), ARX(model.arx.a, model.arx.b / gain))

@@ -390,3 +390,17 @@ def to_hbjax(sys):
         hbjax.Backlash(c1=np.asarray(sys["c1"], float), c2=np.asarray(sys["c2"], float)),
         hbjax.ARX(a=np.asarray(sys["a"], float), b=np.asarray(sys["b"], float)),
     )
+
+
+def random_differencing_system(rng, *, m=3):
+    """A system whose linear block has almost no static gain: ``B = beta (1 - rho q^-1)``
+    with ``1 - rho`` log-uniform in [1e-5, 1e-3] (``|B(1)| / sum |b|`` 5e-6 to 5e-4), the
+    output a near-difference of the backlash output, as a friction force follows the
+    velocity of a driven displacement. ``A`` stable of order 2 (poles 0.2-0.95), branches
+    from :func:`random_paper_system` (``m`` coefficients); ``beta`` sets the output's
+    scale near the branches'."""
+    sys_ = random_paper_system(rng, n=2, m=m)
+    rho = 1.0 - float(np.exp(rng.uniform(np.log(1e-5), np.log(1e-3))))
+    beta = float(rng.choice([-1.0, 1.0]) * np.exp(rng.uniform(np.log(0.5), np.log(2.0))))
+    sys_.update(b=np.array([beta, -beta * rho]), nb=2, delay=0)
+    return sys_

@@ -40,7 +40,13 @@ class ParameterMismatch(AbstractKernelEffect):
         nom = np.asarray(ctx.theta_nom[:lay.p_base])
         new = np.concatenate([np.asarray(x) for x in (model.arx.a, model.arx.b,
                                                        model.backlash.c1, model.backlash.c2)])
-        rel = np.abs(new - nom) / np.maximum(np.abs(nom), 1e-3 * (np.max(np.abs(nom)) or 1.0))
+        # The floor of the relative change within each group (a, b, branches): the groups
+        # carry different units (the output's unit sits in b or in the branches), and a
+        # floor over all of them named another parameter when the output's unit changed.
+        sizes = (lay.na, lay.nb, 2 * lay.m)
+        floor = np.concatenate([np.full(n, 1e-3 * (np.max(np.abs(g), initial=0.0) or 1.0))
+                                for n, g in zip(sizes, np.split(nom, np.cumsum(sizes)[:-1]))])
+        rel = np.abs(new - nom) / np.maximum(np.abs(nom), floor)
         k = int(np.argmax(rel))
         name = param_names(model)[k]
         return {
