@@ -17,6 +17,8 @@ import dataclasses
 
 import numpy as np
 
+from .._results import RESULTS
+
 # |B(1)| below this fraction of sum |b| at the first pass's optimum: the second pass runs.
 # (A paper-class system's own B has |B(1)| >= 0.2 sum |b| in the independent generator.)
 NEAR_ZERO_GAIN = 0.05
@@ -33,8 +35,6 @@ def gain_vanishes(model) -> bool:
 def better_in_paper_gauge(res, recordings, key, fit_jit, polished_jit, options):
     """`res`, or the starts solved in the paper's gauge where their best optimum, refined
     in ``B(1) = 1``, is a success with a lower cost (or `res` is not a success)."""
-    from .fit import RESULTS  # (one result enumeration; imported where the two meet)
-
     alt = fit_jit(recordings, key, polish=False, level=PAPER_LEVEL, **options)
     refine_options = {k: options[k] for k in ("criterion", "max_steps", "min_sim_fit",
                                               "initial_state")}
