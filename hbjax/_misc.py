@@ -82,9 +82,11 @@ def check_finite(x: jax.Array, name: str) -> jax.Array:
 MAX_MAGNITUDE = 1e100
 
 
-def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE):
+def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE, *, output: bool = False):
     """Refuse a concrete record whose samples are too large for the estimators' sums of
-    squares (they would overflow to inf and surface as a numerical failure elsewhere)."""
+    squares (they would overflow to inf and surface as a numerical failure elsewhere);
+    an estimator's `output` also when its nonzero samples are all below ``1 / limit`` (the
+    estimate's variances carry the output's unit squared and would underflow to 0)."""
     if is_traced(x):
         return x
     peak = float(np.max(np.abs(np.asarray(x)))) if np.size(x) else 0.0
@@ -94,7 +96,7 @@ def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE):
             f"squares, which overflow float64 beyond about 1e154: rescale `{name}` (and the "
             f"model) to units where its samples stay below {limit:.0e}."
         )
-    if 0.0 < peak < 1.0 / limit:
+    if output and 0.0 < peak < 1.0 / limit:
         raise ValueError(
             f"`{name}` reaches a magnitude of only {peak:.3g}; the estimators' variances are "
             f"squares of it, which underflow to 0 below about 1e-154: rescale `{name}` (and "
@@ -103,15 +105,15 @@ def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE):
     return x
 
 
-def check_values(x, name: str, limit: float = MAX_MAGNITUDE):
+def check_values(x, name: str, limit: float = MAX_MAGNITUDE, *, output: bool = False):
     """:func:`check_finite` then :func:`check_magnitude`; concrete data that pass both cost
     two reductions (max and min, which NaN and inf fail), not the four passes of the two."""
     if not is_traced(x) and np.size(x):
         arr = np.asarray(x)
         peak = max(float(np.max(arr)), -float(np.min(arr)))
-        if peak <= limit and (peak == 0.0 or peak >= 1.0 / limit):  # (False for NaN)
+        if peak <= limit and not (output and 0.0 < peak < 1.0 / limit):  # (False for NaN)
             return x
-    return check_magnitude(check_finite(x, name), name, limit)
+    return check_magnitude(check_finite(x, name), name, limit, output=output)
 
 
 def float_dtype(*trees):

@@ -87,5 +87,9 @@ def test_an_output_too_small_for_its_squares_is_refused_by_name():
         hbjax.refine(start, (v, y * 1e-120))
     with pytest.raises(ValueError, match=r"`y` reaches a magnitude of only"):
         hbjax.diagnose(start, v, y * 1e-120)
+    # only an estimator's output: comparing a model with such a record forms no variances
+    small = hbjax.Hammerstein(hbjax.Backlash(np.asarray(start.backlash.c1) * 1e-120,
+                                             np.asarray(start.backlash.c2) * 1e-120), start.arx)
+    assert np.isfinite(float(np.ravel(hbjax.compare(small, v, y * 1e-120).fit)[0]))
     # an output that is exactly zero is not a unit problem (it is refused elsewhere, or fits)
     assert hbjax.refine(start, (v, np.zeros_like(y)), throw=False).result is not None

@@ -68,7 +68,7 @@ def _check_inputs(model, v, y, holdout, effects, key):
         raise ValueError("the nominal `model` has an unstable A (assumption A3): its free run "
                          "diverges; start from a stable nominal model.")
     v = check_values(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v")
-    y = check_values(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y")
+    y = check_values(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y", output=True)
     same_length(v=v, y=y)
     holdout = fraction(holdout, "holdout")
     lay_p = model.arx.na + model.arx.nb + 2 * model.backlash.m

@@ -40,7 +40,7 @@ def better_in_paper_gauge(res, recordings, key, fit_jit, polished_jit, options):
                                               "initial_state")}
     # Margin 1e-6: the same optimum in the other gauge may come out a rounding above.
     converted, taken = polished_jit(alt, recordings, margin=1e-6, **refine_options)
-    if not bool(taken) or converted.result != RESULTS.successful:
+    if not bool(taken):  # (taken: the refinement in B(1) = 1 is a success)
         return res
     if res.result == RESULTS.successful and not (
             float(converted.stats["cost"]) < float(res.stats["cost"])):

@@ -272,7 +272,7 @@ def _record(y, name, minimum, what):
             f"`{name}` has {y.shape[0]} samples; it must cover at least {what} "
             f"({minimum} samples)."
         )
-    return check_values(y, name)
+    return check_values(y, name, output=True)
 
 
 def _check_input_record(design, v, name, expected):

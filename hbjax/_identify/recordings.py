@@ -93,8 +93,7 @@ def as_recordings(recordings, name: str = "recordings", *, model=None, host: boo
             )
         if v.shape[0] < 2:
             raise ValueError(f"`{tag}` must hold at least 2 samples, got {v.shape[0]}.")
-        out.append(tuple(check_values(x, f"{tag} {side}")
-                         for x, side in ((v, "v"), (y, "y"))))
+        out.append((check_values(v, f"{tag} v"), check_values(y, f"{tag} y", output=True)))
     named = {f"{name}[{k}] {side}": arr for k, pair in enumerate(out)
              for side, arr in zip("vy", pair)}
     one_device(**named, model=model)

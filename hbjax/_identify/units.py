@@ -21,9 +21,9 @@ import dataclasses
 
 import jax.numpy as jnp
 
-from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._core.model import Hammerstein
+from .._core.params import flatten_params, model_from_theta
 from .criteria import unpack, where_valid
 from .parametrisation import PAPER
 
@@ -63,13 +63,8 @@ def result_from_unit(res, unit):
     """A refinement result on ``y / unit`` carried back to ``y``: the model, covariance,
     noise level and costs; fit percentages, p-values and input ranges are unit-free."""
     na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
-    model = res.model
-    if res.gauge == PAPER:
-        model = Hammerstein(model.backlash, ARX(model.arx.a, model.arx.b * unit))
-    else:
-        model = Hammerstein(Backlash(model.backlash.c1 * unit, model.backlash.c2 * unit),
-                            model.arx)
     w = unit_weights(res.gauge, na, nb, m, unit)
+    model = model_from_theta(flatten_params(res.model) * w, na, nb)
     stats = dict(res.stats)
     for name in ("cost", "initial_cost"):
         stats[name] = stats[name] * unit**2
