@@ -137,15 +137,8 @@ def test_periodic_disturbance_at_an_input_harmonic_is_not_unrelated():
     assert "unrelated to the input" in d2.describe(None, info)["physics"]
 
 
-def _open(effect):
-    # strict: the day the target is met the suite fails, and the marker goes
-    return pytest.param(effect, marks=pytest.mark.xfail(
-        strict=True, reason=f"open target: with every effect offered, {effect} was the best "
-        "finding on 1 of these 3 seeds when last measured"))
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", ["coulomb_friction", _open("level_dependent_dynamics"),
+@pytest.mark.parametrize("effect", ["coulomb_friction", "level_dependent_dynamics",
                                     "harmonic_distortion"])
 def test_new_effect_named_over_seeds(effect):
     """A statistic over seeds: the right effect is the best finding on at least 2 of 3
