@@ -432,28 +432,6 @@ def test_file_from_before_a_field_with_a_default_was_added_still_loads(system):
         model_from_json(json.dumps(doc))
 
 
-def test_file_from_before_the_matched_pole_map_simulates_as_it_did(system):
-    # level_dependent_dynamics moved its poles through the bilinear map before it gained
-    # `pole_map` (new objects: the matched map p^s); a file without the field is one of
-    # those and must simulate as it did, not silently with the new law
-    fields = (jnp.asarray(0.5), jnp.asarray(0.3), jnp.asarray(1.0), jnp.asarray(2.0))
-    new = hbjax.EFFECTS["level_dependent_dynamics"](system, *fields)
-    old = hbjax.EFFECTS["level_dependent_dynamics"](system, *fields, pole_map="bilinear")
-    assert new.pole_map == "matched"
-    doc = json.loads(model_to_json(new))
-    assert doc["model"]["fields"].pop("pole_map") == "matched"
-    back = model_from_json(json.dumps(doc))
-    assert back.pole_map == "bilinear"
-    v = jnp.concatenate([jnp.linspace(-4, 4, 60), jnp.full(60, 4.0), jnp.linspace(4, -4, 60)])
-    np.testing.assert_array_equal(hbjax.simulate(back, v), hbjax.simulate(old, v))
-    assert not np.allclose(hbjax.simulate(back, v), hbjax.simulate(new, v), atol=1e-6)
-    # a file that names its map keeps it, and an unknown map is refused by name
-    assert model_from_json(model_to_json(new)).pole_map == "matched"
-    doc["model"]["fields"]["pole_map"] = "tustin"
-    with pytest.raises(ModelFileError, match="pole_map"):
-        model_from_json(json.dumps(doc))
-
-
 def test_written_files_get_ordinary_permissions(tmp_path, system):
     umask = os.umask(0o022)
     try:

@@ -116,11 +116,8 @@ def _decode_module(obj, extra, where):
     expected = [f.name for f in fields]
     given = obj["fields"]
     # a field added to a class later, with a default, is absent from the files written
-    # before it: those files keep loading, with the default, or with the class's
-    # `file_defaults` entry where the value that reproduces those files differs from the
-    # default of a new object (a law whose form changed)
+    # before it: those files keep loading, with the default
     defaults = {f.name: f.default for f in fields if f.default is not dataclasses.MISSING}
-    defaults.update({n: d for n, d in getattr(cls, "file_defaults", {}).items() if n in defaults})
     missing = [n for n in expected if n not in given and n not in defaults]
     unknown = [n for n in given if n not in expected]
     if missing or unknown:

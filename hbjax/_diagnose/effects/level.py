@@ -6,7 +6,6 @@ from __future__ import annotations
 import functools
 from typing import ClassVar
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -28,18 +27,14 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
         ``s(t) = (depth / |y(t-1) - outlet|)^alpha``, ``depth = y_mean - outlet``,
 
     where ``A_s`` has the poles of ``A`` with their continuous-time rates multiplied by
-    ``s``: pole ``p`` goes to ``p^s`` (``exp(s log p)``, the exact discrete form of a
-    continuous-time pole ``log p`` scaled by ``s``; stable for every ``s > 0``; a
-    negative real pole, which has no continuous-time rate, goes to ``-|p|^s``), and
-    ``g = A_s(1) / (s A(1))`` sets the static gain to ``1/s`` times the nominal one. In
-    equilibrium ``s A(1) (y - outlet) = B(1) u - A(1) outlet``: the outflow goes as
+    ``s`` (through the bilinear map ``x = (z - 1) / (z + 1)``: pole ``p`` goes to
+    ``(1 + s x_p) / (1 - s x_p)``, stable for every ``s > 0``) and ``g = A_s(1) / (s A(1))``
+    sets the static gain to ``1/s`` times the nominal one. In equilibrium
+    ``s A(1) (y - outlet) = B(1) u - A(1) outlet``: the outflow goes as
     ``(y - outlet)^(1 - alpha)``, Torricelli's law for ``alpha = 1/2``; locally every time
     constant and the gain grow as ``(y - outlet)^alpha``. ``s = 1`` at the mean level, so
     ``alpha = 0`` is the nominal model. Fitted: ``alpha``, ``log_depth``
     (``depth = exp(log_depth) y_std``) and the ``datum`` (below; ``None``: the outlet).
-    ``pole_map="bilinear"`` moves each pole through ``x = (z - 1) / (z + 1)`` instead
-    (``p`` to ``(1 + s x_p) / (1 - s x_p)``): the law's form before the matched map, with
-    which model files written then still load; it agrees with ``p^s`` for slow poles only.
 
     The datum is the level the scaled block's input response is measured from: the law
     above with ``datum`` in place of ``outlet`` outside ``s``,
@@ -61,12 +56,8 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     y_mean: Float[Array, ""]
     y_std: Float[Array, ""]
     datum: Float[Array, ""] | None = None
-    pole_map: str = eqx.field(static=True, default="matched")
 
     name: ClassVar[str] = "level_dependent_dynamics"
-    #: the pole map of files written before ``pole_map`` existed: the bilinear one, so
-    #: that a saved model simulates as it did (hbjax.load_model)
-    file_defaults: ClassVar[dict] = {"pole_map": "bilinear"}
     n_params: ClassVar[int] = 3
     constraints: ClassVar[dict] = {
         "alpha": EffectConstraint(), "log_depth": EffectConstraint(), "y_mean": EffectConstraint(),
@@ -87,12 +78,9 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     # same records of the generator in tests/ (four full seeds and a level-law seed): the
     # level law named on 22 of 22 records against 17, one parameter_mismatch lost to it,
     # top-1 200 of 210 against 198, no clean record with a finding (benchmarks/RESULTS.md,
-    # "the level law's anchored variant, before and after"). Where a record rejects the
-    # held base, the base-consistency test refuses the anchored variant and the joint one
-    # stands. With the bilinear pole map (`pole_map`) the base was rejected on 4 of 8
-    # level-law records of one seed, p down to 1e-76: for fast poles that map is far
-    # from the plant's p^s. With the matched map, on 1 of the same 8 (p = 1e-6), the
-    # same top findings (benchmarks/RESULTS.md, "the level law's matched pole map").
+    # "the level law's anchored variant, before and after"). Where a strong
+    # law's record rejects the held base (the bilinear pole map is not the plant's), the
+    # base-consistency test refuses the anchored variant and the joint one stands.
 
     @classmethod
     def from_params(cls, base, params, consts=None):
@@ -104,11 +92,6 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
     def params(self):
         return jnp.stack([jnp.asarray(self.alpha), jnp.asarray(self.log_depth),
                           (self.datum_level - self.y_mean) / self.y_std])
-
-    def __check_init__(self):
-        if self.pole_map not in ("matched", "bilinear"):
-            raise ValueError(f"`LevelDependentDynamics.pole_map` must be 'matched' or "
-                             f"'bilinear', got {self.pole_map!r}.")
 
     @property
     def outlet(self):
@@ -131,15 +114,34 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
 
     def recursion(self, v, u, y_forced, noise):
         a, b = self.base.arx.a, self.base.arx.b
-        scaled_a = (_matched_scaling if self.pole_map == "matched" else _bilinear_scaling)(a)
+        na = a.shape[0]
+        to_rates, from_rates = (jnp.asarray(m, a.dtype) for m in _rate_maps(na))
+        rates = to_rates @ jnp.concatenate([jnp.ones(1, a.dtype), a])
+        # the coefficients of A_s are polynomials in s: A_s = scaled @ [1, s, ..., s^na]
+        # with one matrix for the whole record. Inside the step they are evaluated on
+        # scalars with powers of s by products: XLA fuses scalar arithmetic into the
+        # step's one kernel, while small dots, stacks and pows each cost a kernel (the
+        # array form of this step ran 1.7x slower)
+        scaled = (from_rates * rates[None, :])[:, ::-1]   # columns: s^0 .. s^na
+        total = jnp.sum(scaled, axis=0)
+        rows = [[scaled[i, k] for k in range(na + 1)] for i in range(na + 1)]
+        total = [total[k] for k in range(na + 1)]
         gain_a = 1.0 + jnp.sum(a)
         datum = self.datum_level
 
         def law(level):
             s = self.scaling(level)
-            a_s = scaled_a(s)
-            gain_s = 1.0 + sum(a_s)            # A_s(1)
-            g = gain_s / (s * gain_a)          # static gain 1/s times the nominal one
+            s_pows = [jnp.ones_like(s)]
+            for _ in range(na):
+                s_pows.append(s_pows[-1] * s)
+
+            def poly(coefs):
+                return sum(c * p for c, p in zip(coefs, s_pows))
+
+            inv_lead = 1.0 / poly(rows[0])
+            a_s = [poly(rows[i + 1]) * inv_lead for i in range(na)]
+            gain_s = poly(total) * inv_lead   # A_s(1)
+            g = gain_s / (s * gain_a)         # static gain 1/s times the nominal one
             return a_s, g, (gain_s - g * gain_a) * datum
 
         return arx_scan(a, b, u, noise, y_forced, lambda u_t, y_t, lags: (u_t, 0.0 * y_t),
@@ -197,86 +199,6 @@ class LevelDependentDynamics(AbstractRecursiveEffect):
         model = cls(base, jnp.asarray(0.5), jnp.asarray(np.log(depth / std)),
                     jnp.asarray(mean), jnp.asarray(std))
         return model, base, {"alpha": 0.5, "outlet": mean - depth}
-
-
-# Both maps give the coefficients of A_s as scalars, evaluated inside the scan's step by
-# scalar arithmetic: XLA fuses it into the step's one kernel, where small dots, stacks and
-# pows each cost a kernel (an array form of the step ran 1.7x slower).
-
-def _matched_scaling(a):
-    """``s -> [a_1(s), ..., a_na(s)]``, the coefficients of ``A_s`` with every pole ``p``
-    of ``A`` moved to ``p^s`` (``-|p|^s`` for a negative real pole). The poles are found
-    once per record (:func:`_pole_rates`)."""
-    na = a.shape[0]
-    log_mag, angle, negative = _pole_rates(a)
-
-    def scaled(s):
-        coef_re, coef_im = [jnp.ones_like(s)], [jnp.zeros_like(s)]
-        for i in range(na):
-            mag = jnp.exp(s * log_mag[i])
-            q_re = jnp.where(negative[i], -mag, mag * jnp.cos(s * angle[i]))
-            q_im = jnp.where(negative[i], 0.0, mag * jnp.sin(s * angle[i]))
-            # the polynomial times (1 - q z^-1)
-            nxt_re, nxt_im = list(coef_re) + [0.0], list(coef_im) + [0.0]
-            for k in range(1, i + 2):
-                nxt_re[k] = nxt_re[k] - (q_re * coef_re[k - 1] - q_im * coef_im[k - 1])
-                nxt_im[k] = nxt_im[k] - (q_re * coef_im[k - 1] + q_im * coef_re[k - 1])
-            coef_re, coef_im = nxt_re, nxt_im
-        return coef_re[1:]  # conjugate pairs: the imaginary parts cancel
-
-    return scaled
-
-
-def _bilinear_scaling(a):
-    """``s -> [a_1(s), ..., a_na(s)]`` with every pole ``p`` moved to
-    ``(1 + s x) / (1 - s x)``, ``x = (p - 1) / (p + 1)``: the law's map before the matched
-    one, kept so that model files written with it simulate as they did. The coefficients
-    of ``A_s`` are polynomials in ``s`` (:func:`_rate_maps`), evaluated with powers of
-    ``s`` by products."""
-    na = a.shape[0]
-    to_rates, from_rates = (jnp.asarray(m, a.dtype) for m in _rate_maps(na))
-    rates = to_rates @ jnp.concatenate([jnp.ones(1, a.dtype), a])
-    table = (from_rates * rates[None, :])[:, ::-1]   # columns: s^0 .. s^na
-    rows = [[table[i, k] for k in range(na + 1)] for i in range(na + 1)]
-
-    def scaled(s):
-        powers = [jnp.ones_like(s)]
-        for _ in range(na):
-            powers.append(powers[-1] * s)
-
-        def poly(coefs):
-            return sum(c * p for c, p in zip(coefs, powers))
-
-        inv_lead = 1.0 / poly(rows[0])
-        return [poly(rows[i + 1]) * inv_lead for i in range(na)]
-
-    return scaled
-
-
-def _pole_rates(a):
-    """``(log|p|, angle, negative)`` of the poles ``p`` of ``A`` (roots of
-    ``z^na + a_1 z^(na-1) + ... + a_na``), each an ``na`` vector: ``p^s`` is then
-    ``exp(s log|p|) (cos(s angle) + i sin(s angle))``, the pole whose continuous-time rate
-    ``log p`` is ``s`` times as large, or ``-|p|^s`` where ``negative`` (a negative real
-    pole has no continuous-time rate; it keeps its sign). The eigenvalues' derivatives are
-    those of the companion matrix (``jax.numpy.linalg.eigvals``); a zero pole stays at 0."""
-    na = a.shape[0]
-    if na == 0:
-        empty = jnp.zeros((0,), a.dtype)
-        return empty, empty, jnp.zeros((0,), bool)
-    companion = jnp.zeros((na, na), a.dtype).at[0].set(-a)
-    if na > 1:
-        companion = companion.at[jnp.arange(1, na), jnp.arange(na - 1)].set(1.0)
-    p = jnp.linalg.eigvals(companion)
-    re, im = jnp.real(p), jnp.imag(p)
-    negative = (im == 0) & (re < 0)
-    mag2 = re * re + im * im
-    zero = mag2 == 0
-    # guarded so that a zero pole (a_na = 0) has finite derivatives: exp(s * -690) = 0
-    log_mag = jnp.where(zero, -690.0, 0.5 * jnp.log(jnp.where(zero, 1.0, mag2)))
-    angle = jnp.where(zero | negative, 0.0,
-                      jnp.arctan2(im, jnp.where(zero, 1.0, re)))
-    return log_mag, angle, negative
 
 
 @functools.cache
