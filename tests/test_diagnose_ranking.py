@@ -45,6 +45,20 @@ def test_recorded_signature_outranks_its_rivals_and_nothing_else():
                            "colored_noise"]
 
 
+def test_level_law_and_extra_delay_are_rivals_of_a_recorded_clip():
+    """A gain falling with the level flattens the top like a soft clip and a delay absorbs
+    the one-step errors after each exit from it: both can win in BIC on a clipped record,
+    neither holds the measurement exactly at a level."""
+    base = hbjax.default_system()
+    clip = hbjax.EFFECTS["output_saturation"](base, None, jnp.asarray(5.0))
+    found = [_finding("level_dependent_dynamics", base, 60.0),
+             _finding("extra_delay", base, 80.0),
+             _finding("coulomb_friction", base, 70.0),
+             _finding("output_saturation", clip, 120.0, signature=True)]
+    assert [f.effect for f in rank(found)] == ["output_saturation", "level_dependent_dynamics",
+                                               "coulomb_friction", "extra_delay"]
+
+
 def test_clip_signature_appears_only_in_clipped_outputs():
     """Over random systems, inputs, lengths and noise levels of the independent generator
     (tests/generators): the plateau signature the ranking relies on is found on clipped
