@@ -50,6 +50,8 @@ from .clip_nominal import ON_NOMINAL, clip_on_nominal
 from .decide import BIC_MARGIN, DM_Z, decide, rank, statistics
 from .effects import base_theta, resolve
 from .fitting import choose_starts, evaluate_candidates, fit_candidates
+from .input_clip_nominal import ON_NOMINAL as INPUT_CLIP_ON_NOMINAL
+from .input_clip_nominal import input_clip_on_nominal
 from .kernel import MAX_DELAY
 from .result import Diagnosis, Finding
 from .signatures import change_scan, residual_signatures
@@ -228,6 +230,14 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                                  channels, n_fit, burn, criterion, table)
         if finding is not None:
             findings = findings + [finding]
+    if fx.InputSaturation in effects and not findings:
+        # an actuator limit every held-out sample stays inside: validated by folds
+        row, finding = input_clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all,
+                                             stats, [c.label for c in candidates], criterion)
+        if row is not None:
+            table[INPUT_CLIP_ON_NOMINAL] = row
+        if finding is not None:
+            findings = [finding]
     findings = rank(findings)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
