@@ -81,8 +81,8 @@ def input_clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
     free-run fit over the record; the refit does not simulate the held-out part
     significantly better than the nominal model (Diebold-Mariano z <= DM_Z: a base that
     must move is not explained by an actuator limit alone), and the nominal model
-    simulates it significantly better than a constant output. A clip seen in one burst only cannot be cross-validated and is not
-    reported.
+    simulates it significantly better than a constant output. A side of the clip reached
+    in one block only cannot be predicted from the others, so it is not confirmed.
 
     Returns ``(table_row | None, Finding | None)``."""
     from scipy.signal import lfilter  # (imported where used: 0.85 s of `import hbjax`)
