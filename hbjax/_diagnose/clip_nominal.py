@@ -35,21 +35,21 @@ def _significant(dm, sign):
     return dm > DM_Z or sign["p"] < SIGN_P
 
 
-def _best_level(sse, levels, side, start, reach):
+def _best_level(sse, levels, side, start, reach, points=401):
     """Clip level on one ``side`` (in ``s * y`` units, ``s = +1`` upper, ``-1`` lower)
-    minimising ``sse(lower, upper)`` with the other side at ``levels``: a grid of 401 levels
-    on ``[start, reach]``, then 201 around the best (the cost is piecewise smooth in the
-    level and cheap to evaluate on a fixed simulation)."""
+    minimising ``sse(lower, upper)`` with the other side at ``levels``: a grid of
+    ``points`` levels on ``[start, reach]``, then ``points // 2 + 1`` around the best (the
+    cost is piecewise smooth in the level and cheap to evaluate on a fixed simulation)."""
     s = 1 if side == "upper" else -1
 
     def cost(lev):
         trial = dict(levels, **{side: s * lev})
         return sse(trial["lower"], trial["upper"])
 
-    coarse = np.linspace(start, reach, 401)
+    coarse = np.linspace(start, reach, points)
     best = min(coarse, key=cost)
-    step = (reach - start) / 400
-    return float(min(np.linspace(best - step, best + step, 201), key=cost))
+    step = (reach - start) / (points - 1)
+    return float(min(np.linspace(best - step, best + step, points // 2 + 1), key=cost))
 
 
 def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names, criterion,

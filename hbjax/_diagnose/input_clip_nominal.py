@@ -21,7 +21,7 @@ import numpy as np
 from .._misc import jsonable as _jsonable
 from . import effects as fx
 from . import residual_tests as rt
-from .clip_nominal import MIN_CHANGED, N_FOLDS, _significant
+from .clip_nominal import MIN_CHANGED, N_FOLDS, _best_level, _significant
 from .decide import BIC_MARGIN, DM_Z, over_constant
 from .kernel import MAX_DELAY
 from .result import Finding
@@ -37,30 +37,27 @@ CHANGED_FRACTION = 0.05
 def _levels(resid, u, part):
     """Clip levels ``{"lower", "upper"}`` of the internal signal minimising the sum of
     ``resid(lower, upper)[part] ** 2``; a side stays open (``-inf`` / ``inf``) unless a
-    level inside the range of ``u[part]`` lowers that sum. Each side by a grid of 201
-    levels from the median to the extreme, then 101 around the best (piecewise smooth in
-    the level, cheap on a fixed simulation); the upper side first, then the lower, then
-    the upper again with the lower in place."""
+    level inside the range of ``u[part]`` lowers that sum. Each side by the output clip's
+    grid search (:func:`hbjax._diagnose.clip_nominal._best_level`, 201 levels from the
+    median to the extreme, then 101 around the best); the upper side first, then the
+    lower, then the upper again with the lower in place."""
     levels = {"lower": -np.inf, "upper": np.inf}
     mid = float(np.median(u[part]))
 
-    def cost(trial):
-        return float(np.sum(resid(trial["lower"], trial["upper"])[part] ** 2))
+    def sse(lo, hi):
+        return float(np.sum(resid(lo, hi)[part] ** 2))
 
     for side in ("upper", "lower", "upper"):
         s = 1 if side == "upper" else -1
         reach = float(np.max(s * u[part]))
         if reach <= s * mid:
             continue
-        best_cost = cost(dict(levels, **{side: s * np.inf}))
-        coarse = np.linspace(s * mid, reach, 201)
-        costs = [cost(dict(levels, **{side: s * x})) for x in coarse]
-        step = (reach - s * mid) / 200
-        centre = coarse[int(np.argmin(costs))]
-        fine = np.linspace(centre - step, min(centre + step, reach), 101)
-        costs = [cost(dict(levels, **{side: s * x})) for x in fine]
-        j = int(np.argmin(costs))
-        levels[side] = s * fine[j] if costs[j] < best_cost and fine[j] < reach else s * np.inf
+        trial = dict(levels, **{side: s * np.inf})
+        open_cost = sse(trial["lower"], trial["upper"])
+        best = _best_level(sse, levels, side, s * mid, reach, points=201)
+        trial[side] = s * best
+        levels[side] = (s * best if best < reach and sse(trial["lower"], trial["upper"]) < open_cost
+                        else s * np.inf)
     return levels
 
 
