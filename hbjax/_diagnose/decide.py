@@ -35,7 +35,10 @@ def rank(findings):
     for f in [f for f in out if f.evidence.get("record_signature")]:
         rivals = getattr(type(f.model), "signature_rivals", ())
         i = next(k for k, g in enumerate(out) if g is f)
-        first = next((k for k, g in enumerate(out[:i]) if g.effect in rivals), None)
+        # a rival whose own model reproduces the signature (a level law read through the
+        # sensor's range) keeps its place
+        first = next((k for k, g in enumerate(out[:i]) if g.effect in rivals
+                      and not g.evidence.get("record_signature")), None)
         if first is not None:
             out.insert(first, out.pop(i))
     return out

@@ -53,6 +53,9 @@ from .fitting import choose_starts, evaluate_candidates, fit_candidates
 from .input_clip_nominal import ON_NOMINAL as INPUT_CLIP_ON_NOMINAL
 from .input_clip_nominal import input_clip_on_nominal
 from .kernel import MAX_DELAY
+from .level_cascade import ON_NOMINAL as CASCADE
+from .level_cascade import level_cascade_on_nominal
+from .residual_tests import plateaus
 from .result import Diagnosis, Finding
 from .signatures import change_scan, residual_signatures
 from .solve import evaluate_batch, jacobian
@@ -238,6 +241,19 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
             table[INPUT_CLIP_ON_NOMINAL] = row
         if finding is not None:
             findings = [finding]
+    if fx.LevelDependentDynamics in effects and criterion == "simulation":
+        # a level fed through a second, unmeasured one: the level law of a cascade of
+        # tanks, which the single-level law cannot express; an output-error model of a
+        # slow process, so tried under the output-error criterion only, where its free-run
+        # BIC is on the same footing as the other candidates'
+        sensor = (plateaus(y, -1), plateaus(y, +1))
+        row, finding = level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all,
+                                                stats, [c.label for c in candidates], tests,
+                                                sensor)
+        if row is not None:
+            table[CASCADE] = row
+        if finding is not None:
+            findings = findings + [finding]
     findings = rank(findings)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"

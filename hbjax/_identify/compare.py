@@ -157,6 +157,9 @@ def extension_state(model: AbstractModel, v, y):
     added to the linear block's output; a first-order account for effects inside the
     recursion. The returned :class:`InitialState` holds the base's output lags that give
     the same equation error (least squares when ``nb > na``)."""
+    own = getattr(model, "estimate_start", None)
+    if own is not None:  # an extension with a state of its own (e.g. two tank levels)
+        return own(v, y)
     base = model.base
     dtype = jnp.result_type(v, y, base.arx.a)
     u0 = estimate_initial_state(base, v, y).u0

@@ -1,0 +1,326 @@
+"""Level-dependent dynamics with an unmeasured upstream level: the measured output is the
+level of a store fed through a second store, each drained through an outlet (Torricelli's
+outflow ~ sqrt(level)), the upstream one overflowing at a level.
+
+This is the level law of a cascade of tanks, which :class:`hbjax._diagnose.effects.
+LevelDependentDynamics` cannot express: that law scales the nominal linear block with the
+*measured* level, so it has no second level of its own, while in a cascade the upstream
+level sets the inflow of the measured one and, where it overflows, caps it. The model
+replaces the linear block (its two levels are its state); its inflow is affine in the
+recorded input or in the nominal model's internal signal ``u`` (eq. (10)), whichever fits
+better. It is tried where the joint fits explain no part of the free-run error and the
+nominal free run's error depends on the output level (the regime test), and reported only
+on held-out evidence (see :func:`level_cascade_on_nominal`)."""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float
+
+from .._core.initial import InitialState
+from .._core.model import AbstractModel, Hammerstein, play_trajectory
+from .._misc import jsonable as _jsonable
+from . import residual_tests as rt
+from .decide import BIC_MARGIN, DM_Z, over_constant
+from .explain import rounded
+from .result import Finding
+
+#: key of the candidate table for the two-level cascade
+ON_NOMINAL = "level_dependent_dynamics (two levels in series, overflow)"
+#: the share of the nominal free-run error's variance the output level must explain
+#: (:func:`hbjax._diagnose.residual_tests.regime_dependence`) before the cascade is tried
+MIN_LEVEL_SHARE = 0.10
+#: random starts per feed (the recorded input, the nominal internal signal)
+STARTS = 32
+#: parameters: inflow gain and offset, upstream outflow and outlet, the share of that
+#: outflow the measured store receives, the measured store's outflow and outlet, the
+#: upstream overflow level and the share of the overflow it receives; and the two
+#: initial levels
+N_PARAMS = 11
+FEEDS = ("input", "internal")
+
+
+def _flow(level):
+    """Torricelli's outflow through an outlet at 0: ``sqrt(max(level, 0))``; the small
+    floor keeps its derivative finite where a store runs dry."""
+    return jnp.sqrt(jnp.maximum(level, 0.0) + 1e-12)
+
+
+def _levels(p, x0, w, noise):
+    """Both levels over a record, in the units the fit works in (the measured level
+    centred and scaled by the record's spread, the feed by its largest magnitude):
+
+        ``x1(t+1) = min(x1(t) + g w(t) + c - k1 q(x1(t) - o1), h)``
+        ``x2(t+1) = x2(t) + k2 q(x1(t) - o1) + r s(t) - k3 q(x2(t) - o2) + noise(t)``
+
+    with ``q`` Torricelli's outflow and ``s(t)`` the overflow (the excess over ``h``).
+    Returns ``(x2, s)``."""
+    g, c, k1, o1, k2, k3, o2, h, r = (p[i] for i in range(9))
+
+    def step(x, inputs):
+        x1, x2 = x
+        w_t, xi_t = inputs
+        out1 = _flow(x1 - o1)
+        filled = x1 + g * w_t + c - k1 * out1
+        spill = jnp.maximum(filled - h, 0.0)
+        return (filled - spill, x2 + k2 * out1 + r * spill - k3 * _flow(x2 - o2) + xi_t), (x2, spill)
+
+    return jax.lax.scan(step, (x0[0], x0[1]), (w, noise))[1]
+
+
+class LevelCascade(AbstractModel):
+    """The measured output ``y`` as the lower of two stores in series (see
+    :func:`_levels` for the equations), read through the sensor's range ``[lower,
+    upper]`` where the record shows it (``None``: open). ``feed``: ``"input"`` (the
+    inflow is affine in the recorded input) or ``"internal"`` (in the base model's play
+    operator output ``u``). ``params`` and ``levels0`` (the upstream and measured levels
+    at the record's first sample) are in the fit's units: levels as ``(y - y_center) /
+    y_scale``, the feed divided by ``w_scale``."""
+
+    base: Hammerstein
+    params: Float[Array, " 9"]
+    levels0: Float[Array, " 2"]
+    w_scale: float
+    y_center: float
+    y_scale: float
+    lower: float | None = None
+    upper: float | None = None
+    feed: str = eqx.field(static=True, default="input")
+
+    def _feed(self, v, u0):
+        w = v if self.feed == "input" else play_trajectory(self.base.backlash, v, u0)
+        return w / self.w_scale
+
+    def _read(self, x2):
+        y = self.y_center + self.y_scale * x2
+        if self.lower is not None or self.upper is not None:
+            y = jnp.clip(y, self.lower, self.upper)
+        return y
+
+    def simulate_trajectory(self, v, noise, u0):
+        x2, _ = _levels(self.params, self.levels0, self._feed(v, u0), noise / self.y_scale)
+        return self._read(x2)
+
+    def predict_trajectory(self, v, y, u0):
+        # the upstream level runs free (it is not measured); the measured one is the
+        # recorded output one sample back
+        g, c, k1, o1, k2, k3, o2, h, r = (self.params[i] for i in range(9))
+        w = self._feed(v, u0)
+        x2m = (y - self.y_center) / self.y_scale
+
+        def step(x1, w_t):
+            out1 = _flow(x1 - o1)
+            filled = x1 + g * w_t + c - k1 * out1
+            spill = jnp.maximum(filled - h, 0.0)
+            return filled - spill, k2 * out1 + r * spill
+
+        _, inflow = jax.lax.scan(step, self.levels0[0], w)
+        prev = jnp.concatenate([self.levels0[1:], x2m[:-1]])
+        return self._read(prev + jnp.concatenate([jnp.zeros(1, w.dtype), inflow[:-1]])
+                          - k3 * _flow(prev - o2) * (jnp.arange(w.shape[0]) > 0))
+
+    def estimate_start(self, v, y):
+        """``(InitialState, y_hat)``: the two levels at the record's first sample fitted to
+        ``y`` by least squares of the free run (``hbjax.compare``'s
+        ``initial_state="estimate"``); ``InitialState.y0`` holds them in the output's
+        units, ``[measured, upstream]``."""
+        v, y = jnp.asarray(v), jnp.asarray(y)
+        w = self._feed(v, 0.0)
+        target = (y - self.y_center) / self.y_scale
+
+        def resid(x0, _):
+            return self._read(_levels(self.params, x0, w, jnp.zeros_like(w))[0]) - y
+
+        solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
+        best = None
+        for up in (-1.0, 0.0, 1.0, 2.0, float(self.levels0[0])):
+            x0 = jnp.asarray([up, float(target[0])])
+            sol = optx.least_squares(resid, solver, x0, max_steps=300, throw=False)
+            cost = float(jnp.sum(resid(sol.value, None) ** 2))
+            if math.isfinite(cost) and (best is None or cost < best[0]):
+                best = (cost, sol.value)
+        cost, x0 = best
+        fitted = eqx.tree_at(lambda m: m.levels0, self, x0)
+        y_hat = fitted.simulate_trajectory(v, jnp.zeros_like(v), 0.0)
+        state = InitialState(self.y_center + self.y_scale * x0[::-1], jnp.zeros(()),
+                             jnp.asarray(cost))
+        return state, y_hat
+
+
+def _starts(rng, y0, n):
+    """Random starts in the fit's units: slow stores (rates 10^-2 .. 10^-0.5 per sample,
+    inflow gains up to 1) with outlets below the lowest level and an overflow level
+    above the upstream store's starting level."""
+    rows = []
+    for _ in range(n):
+        k1, k2, k3 = 10 ** rng.uniform(-2.0, -0.5, 3)
+        g = 10 ** rng.uniform(-2.5, 0.0)
+        up = y0 + rng.uniform(0.0, 1.5)
+        rows.append([g, -g * rng.uniform(0.0, 1.0), k1, rng.uniform(-3.0, 0.0), k2, k3,
+                     y0 - rng.uniform(1.0, 4.0), up + rng.uniform(0.2, 4.0),
+                     rng.uniform(0.0, 1.5), up, y0])
+    return np.asarray(rows)
+
+
+def _fit(feeds, target, clip, z0, feed_index, max_steps=400):
+    """Output-error fits of the cascade from every start (one batched solve): feed
+    ``feeds[feed_index[i]]`` for start ``i``. Returns the fitted vectors."""
+    feeds = jnp.asarray(feeds)
+    lo, hi = clip
+
+    def one(z, k):
+        w = feeds[k]
+
+        def resid(z, _):
+            x2 = _levels(z[:9], z[9:], w, jnp.zeros_like(w))[0]
+            return jnp.clip(x2, lo, hi) - target
+
+        return optx.least_squares(resid, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8), z,
+                                  max_steps=max_steps, throw=False).value
+
+    return jax.jit(jax.vmap(one))(jnp.asarray(z0), jnp.asarray(feed_index))
+
+
+def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, names, tests,
+                             sensor):
+    """The two-level cascade fitted by output error on the fitting segment, tried where no
+    mechanism was found and the output level explains at least MIN_LEVEL_SHARE of the
+    nominal free-run error's variance. ``sensor``: the record's plateau signatures
+    (:func:`hbjax._diagnose.residual_tests.plateaus`, ``(lower, upper)``, ``None`` for a
+    side without one): the sensor's range the model reads its level through.
+
+    Decision (all required): BIC gain of its free run over the nominal model's > BIC_MARGIN
+    on the fitting segment (after the burn-in, ``N_PARAMS`` parameters, and the nominal
+    backlash's ``2 m`` for the internal feed; the feed and the start by the same BIC); on the held-out
+    part, a significantly smaller free-run error than the nominal model's and the refit's
+    (Diebold-Mariano z > DM_Z against each) and than a constant output. The model's sensor
+    range reproduces the record's plateaus, so a clip found beside it does not outrank it
+    (``evidence["record_signature"]``, :func:`hbjax._diagnose.decide.rank`).
+
+    Returns ``(table_row | None, Finding | None)``."""
+    share = float(tests.get("regime_output", {}).get("explained", 0.0))
+    if share < MIN_LEVEL_SHARE:
+        return None, None
+    y = np.asarray(y, float)
+    clip = tuple(None if sig is None else sig["level"] for sig in sensor)
+    sensor_signature = {side: sig for side, sig in zip(("lower", "upper"), sensor)
+                        if sig is not None} or None
+    center, scale = float(np.mean(y[:n_fit])), max(float(np.std(y[:n_fit])), 1e-12)
+    target = (y - center) / scale
+    u = np.asarray(u_all[0])
+    scales = [max(float(np.max(np.abs(x[:n_fit]))), 1e-12) for x in (v, u)]
+    feeds = np.stack([v / scales[0], u / scales[1]])
+    lo = -np.inf if clip[0] is None else (clip[0] - center) / scale
+    hi = np.inf if clip[1] is None else (clip[1] - center) / scale
+    rng = np.random.default_rng(0)
+    z0 = np.concatenate([_starts(rng, float(target[0]), STARTS) for _ in FEEDS])
+    which = np.repeat(np.arange(len(FEEDS)), STARTS)
+    z = np.asarray(_fit(feeds[:, :n_fit], target[:n_fit], (lo, hi), z0, which))
+
+    def free_run(zi, k, length):
+        x2 = _levels(jnp.asarray(zi[:9]), jnp.asarray(zi[9:]), jnp.asarray(feeds[k, :length]),
+                     jnp.zeros(length))[0]
+        return center + scale * np.clip(np.asarray(x2), lo, hi)
+
+    sse_fit = [float(np.sum((y[burn:n_fit] - free_run(zi, k, n_fit)[burn:]) ** 2))
+               for zi, k in zip(z, which)]
+    sse_fit = np.where(np.isfinite(sse_fit), sse_fit, np.inf)
+    n = n_fit - burn
+    # the internal signal carries the nominal backlash's 2m fitted parameters
+    k_feed = N_PARAMS + 2 * model.backlash.m * which
+    bics = n * np.log(np.maximum(sse_fit, 1e-300) / n) + k_feed * math.log(n)
+    best = int(np.argmin(bics))
+    if not np.isfinite(sse_fit[best]):
+        return {"bic": np.inf, "fit_sim": np.nan,
+                "decision": "failed: no start gave a finite free run"}, None
+    zb, kb, k = z[best], int(which[best]), int(k_feed[best])
+    y_c = free_run(zb, kb, len(y))
+    y_nom = np.asarray(ysim_all[0])
+    sse_nom = float(np.sum((y - y_nom)[burn:n_fit] ** 2))
+    dbic = n * math.log(max(sse_nom, 1e-300) / max(sse_fit[best], 1e-300)) - k * math.log(n)
+    ref_i = names.index("parameter_mismatch") + 1
+    r_c, r_nom = (y - y_c)[n_fit:], (y - y_nom)[n_fit:]
+    r_ref = (y - np.asarray(ysim_all[ref_i]))[n_fit:]
+    fit_c = rt.fit_percent_unchecked(y[n_fit:], y_c[n_fit:])
+    fit_nom = rt.fit_percent_unchecked(y[n_fit:], y_nom[n_fit:])
+    dm_nom, dm_ref = rt.diebold_mariano(r_nom, r_c), rt.diebold_mariano(r_ref, r_c)
+    dm_const = over_constant(y, n_fit, burn, r_c)
+    bic = float(bics[best])
+    row = {"bic": bic, "k": k, "level_share": share, "feed": FEEDS[kb],
+           "dbic": dbic, "fit_sim": fit_c, "dm_z": dm_nom, "dm_z_vs_refit": dm_ref,
+           "dm_z_over_constant": dm_const}
+    why = None
+    if not dbic > BIC_MARGIN:
+        why = "BIC gain over the nominal free run not above the margin"
+    elif not (dm_nom > DM_Z and fit_c > fit_nom):
+        why = "held-out free run not significantly better than the nominal model's"
+    elif not dm_ref > DM_Z:
+        why = "held-out free run not significantly better than the refit's"
+    elif not dm_const > DM_Z:
+        why = "held-out free run not significantly better than a constant output"
+    row["decision"] = why or "reported"
+    if why is not None:
+        return row, None
+    ext = LevelCascade(model, jnp.asarray(zb[:9]), jnp.asarray(zb[9:]), scales[kb], center,
+                       scale, clip[0], clip[1], FEEDS[kb])
+    text = _describe(ext, v, y)
+    evidence = {
+        "variant": "two levels in series with Torricelli outflows and an upstream overflow, "
+                   "fitted by output error (the nominal linear block replaced)",
+        "reference": "nominal", "base": "replaced", "feed": FEEDS[kb], "bic": bic,
+        "delta_bic_vs_nominal": dbic, "delta_bic_vs_refit": stats[ref_i]["bic"] - bic,
+        "dm_z": dm_nom, "dm_z_vs_refit": dm_ref, "dm_z_over_constant": dm_const,
+        "reference_fit": fit_nom, "refit_fit": rt.fit_percent_unchecked(
+            y[n_fit:], np.asarray(ysim_all[ref_i])[n_fit:]),
+        "parameters_fitted": k, "level_share": share, "kind": "mechanism",
+        "record_signature": sensor_signature,
+    }
+    return row, Finding(
+        effect="level_dependent_dynamics", physics=text["physics"],
+        where=_jsonable(text["where"]), parameters=_jsonable(text["parameters"]), model=ext,
+        metric="simulation", fit_before=fit_nom, fit_after=fit_c, evidence=_jsonable(evidence))
+
+
+def _describe(ext, v, y):
+    """The physics sentence and parameter table from the fitted values."""
+    g, c, k1, o1, k2, k3, o2, h, r = (float(x) for x in ext.params)
+    w = np.asarray(ext._feed(jnp.asarray(v), 0.0))
+    _, spill = _levels(ext.params, ext.levels0, jnp.asarray(w), jnp.zeros(len(w)))
+    overflowing = int(np.sum(np.asarray(spill) > 0))
+    outlet = ext.y_center + ext.y_scale * o2
+    lo, hi = (float(q) for q in np.quantile(y, [0.1, 0.9]))
+    # local time constant of the measured store, d(outflow)/d(level) = k3 / (2 sqrt(depth))
+    tau = [2.0 * math.sqrt(max((lev - ext.y_center) / ext.y_scale - o2, 1e-12)) / max(k3, 1e-12)
+           for lev in (lo, hi)]
+    feed = ("the recorded input" if ext.feed == "input" else
+            "the nominal model's internal signal u")
+    text = (f"The output is the level of a store fed through a second, unmeasured store: the "
+            f"inflow, affine in {feed}, fills the upstream store, which drains into the "
+            f"measured one, and each drains through an outlet as the square root of its "
+            f"level (Torricelli); the measured store's outlet sits at {rounded(outlet, 3)}, so "
+            f"its time constant grows from {rounded(tau[0], 3)} to {rounded(tau[1], 3)} "
+            f"samples between levels {rounded(lo, 3)} and {rounded(hi, 3)}.")
+    if overflowing:
+        text += (f" The upstream store overflows on {overflowing} samples of the record "
+                 f"(a share {rounded(r, 3)} of the overflow reaches the measured store).")
+    else:
+        text += " The upstream store never overflows on this record."
+    if ext.upper is not None or ext.lower is not None:
+        text += (f" The sensor reads within [{ext.lower}, {ext.upper}] (the record holds "
+                 f"its output exactly there).")
+    return {
+        "physics": text,
+        "where": {"windows": [[0, len(y)]], "output_range": [lo, hi], "regime": "output level"},
+        "parameters": {"feed": ext.feed, "outlet_level": rounded(outlet),
+                       "time_constant_samples": [rounded(t) for t in tau],
+                       "overflow_samples": overflowing, "overflow_share": rounded(r),
+                       "sensor_range": [ext.lower, ext.upper],
+                       "inflow_gain": rounded(g), "upstream_rate": rounded(k1),
+                       "transfer_rate": rounded(k2), "outflow_rate": rounded(k3)},
+    }
