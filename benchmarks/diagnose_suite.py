@@ -38,9 +38,9 @@ from generators.concealed_effects import ALL_EFFECTS, concealed_case, random_bas
 NONE = "(none)"
 
 
-def diagnose_case(case):
+def diagnose_case(case, criterion="prediction"):
     """Run diagnose on one case; channels are passed only if diagnose accepts them."""
-    kwargs = {}
+    kwargs = {} if criterion == "prediction" else {"criterion": criterion}
     if case["channels"] and "channels" in inspect.signature(hbjax.diagnose).parameters:
         kwargs["channels"] = case["channels"]
     d = hbjax.diagnose(case["nominal_model"], case["v"], case["y"], **kwargs)
@@ -48,7 +48,7 @@ def diagnose_case(case):
 
 
 def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, structures=None,
-        only=None):
+        only=None, criterion="prediction"):
     """Diagnose the generated cases; with ``only`` (a set of effect names, ``None`` for the
     clean cases) every case is still generated, so the records are those of the full run,
     but only those cases are diagnosed (a before-and-after comparison of a few effects)."""
@@ -75,7 +75,7 @@ def run(effects, per_effect, clean, seed, nominal="true", n=None, log=print, str
         if only is not None and effect not in only:
             continue
         try:
-            d = diagnose_case(case)
+            d = diagnose_case(case, criterion)
             rec["top"] = d.best.effect if d.best is not None else None
             rec["findings"] = [f.effect for f in d.findings]
             # every candidate's criterion, held-out fits, tests and decision, so that a
@@ -220,6 +220,8 @@ def main(argv=None):
                    help="comma-separated effect names ('none' for the clean cases): generate "
                         "every case as usual (the same records as the full run) but diagnose "
                         "only these")
+    p.add_argument("--criterion", choices=["prediction", "simulation"], default="prediction",
+                   help="diagnose's criterion (default: diagnose's own default)")
     p.add_argument("--json", default=None, help="write per-case records and the summary here")
     p.add_argument("--summarise-log", default=None, metavar="FILE",
                    help="no run: rebuild the summary from the per-case lines a (possibly "
@@ -246,7 +248,7 @@ def main(argv=None):
         only = {None if e.strip() == "none" else e.strip()
                 for e in args.diagnose_only.split(",") if e.strip()}
     records = run(effects, args.per_effect, args.clean, args.seed, args.nominal, args.n,
-                  structures=structures, only=only)
+                  structures=structures, only=only, criterion=args.criterion)
     if only is not None:
         effects = [e for e in effects if e in only]
     text = report(records, effects)

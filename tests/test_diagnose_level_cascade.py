@@ -1,0 +1,71 @@
+"""The level law of two stores in series (an unmeasured upper level) under
+``criterion="simulation"``: named on records of a cascade of tanks written from the physics
+(tests/generators/two_tanks.py, not the package's equations), not on records of the paper's
+model."""
+
+import equinox as eqx
+import jax
+import numpy as np
+import pytest
+from generators.concealed_effects import concealed_case
+from generators.two_tanks import pump_voltage, random_tanks, simulate_tanks
+
+import hbjax
+
+jax.config.update("jax_enable_x64", True)
+
+ROW = "level_dependent_dynamics (two levels in series, overflow)"
+
+
+def tanks_record(seed, n=2000):
+    rng = np.random.default_rng(seed)
+    plant = random_tanks(rng, overflow=seed % 2 == 0, clip=seed % 3 != 0)
+    p = pump_voltage(rng, n, "plateaus" if seed % 2 else "multisine")
+    y, levels = simulate_tanks(plant, p, rng)
+    return p, y, levels, plant
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 4])
+def test_two_tanks_named_with_a_held_out_gain(seed):
+    v, y, _, plant = tanks_record(seed)
+    n_fit = int(0.7 * len(v))
+    # the nominal model from the fitting part only, as a user would identify it
+    start = hbjax.identify_nominal(v[:n_fit], y[:n_fit], na=2, nb=2, m=3)
+    nominal = hbjax.identify_nominal(v[:n_fit], y[:n_fit], start=start, criterion="simulation",
+                                     transient=100)
+    d = hbjax.diagnose(nominal, v, y, criterion="simulation", progress=False)
+    row = d.candidates[ROW]
+    assert row["decision"] == "reported", row
+    f = d.best
+    assert f is not None and f.effect == "level_dependent_dynamics", d.summary()
+    assert f.metric == "simulation" and f.fit_after > f.fit_before + 5
+    assert f.evidence["dm_z"] > 2 and f.evidence["dm_z_over_constant"] > 2
+    if plant["clip"]:  # the sensor's range read from the record's plateaus
+        assert f.parameters["sensor_range"][1] == pytest.approx(float(np.max(y)))
+    # its one-step predictor on its own noise-free free run gives that free run back
+    open_range = eqx.tree_at(lambda m: (m.lower, m.upper), f.model, (None, None),
+                             is_leaf=lambda x: x is None)
+    free = np.asarray(hbjax.simulate(open_range, v))
+    np.testing.assert_allclose(np.asarray(hbjax.predict(open_range, v, free)), free,
+                               rtol=1e-9, atol=1e-9 * np.ptp(free))
+    # the model runs on a record of its own, its two levels estimated there
+    rng = np.random.default_rng(100 + seed)
+    p2 = pump_voltage(rng, 1000, "multisine")
+    y2, _ = simulate_tanks(plant, p2, rng)
+    c = hbjax.compare([nominal, f.model], p2, y2, initial_state="estimate")
+    assert c.fit[1] > c.fit[0], c.summary()
+
+
+@pytest.mark.slow
+def test_not_named_on_records_of_the_paper_model():
+    rng = np.random.default_rng(7)
+    reported = []
+    for kind in ("plateaus", "multisine", "noise"):
+        case = concealed_case(rng, None, input_kind=kind, n=1500)
+        d = hbjax.diagnose(case["nominal_model"], case["v"], case["y"], criterion="simulation",
+                           progress=False)
+        row = d.candidates.get(ROW)
+        reported.append(row is not None and row["decision"] == "reported")
+        assert all(f.effect != "level_dependent_dynamics" for f in d.findings), d.summary()
+    assert not any(reported)
