@@ -69,3 +69,27 @@ def test_not_named_on_records_of_the_paper_model():
         reported.append(row is not None and row["decision"] == "reported")
         assert all(f.effect != "level_dependent_dynamics" for f in d.findings), d.summary()
     assert not any(reported)
+
+
+def test_model_file_checked_on_load(tmp_path):
+    import json
+
+    import jax.numpy as jnp
+
+    from hbjax._diagnose.level_cascade import LevelCascade
+
+    base = concealed_case(np.random.default_rng(0), None, n=1000)["nominal_model"]
+    model = LevelCascade(base, jnp.asarray([0.1, 0.0, 0.05, -2.0, 0.05, 0.05, -2.0, 3.0, 0.5]),
+                         jnp.asarray([0.5, 0.0]), 1.0, 2.0, 0.5, None, 3.0, "internal")
+    path = hbjax.save_model(tmp_path / "cascade.json", model)
+    v = np.sin(np.arange(300) / 20.0)
+    np.testing.assert_array_equal(np.asarray(hbjax.simulate(hbjax.load_model(path), v)),
+                                  np.asarray(hbjax.simulate(model, v)))
+    for field, value, message in (("feed", "os.system", "`feed` must be one of"),
+                                  ("y_scale", -1.0, "`y_scale` must be finite and positive")):
+        doc = json.loads(path.read_text())
+        doc["model"]["fields"][field] = value
+        bad = tmp_path / f"bad_{field}.json"
+        bad.write_text(json.dumps(doc))
+        with pytest.raises(ValueError, match=message):
+            hbjax.load_model(bad)

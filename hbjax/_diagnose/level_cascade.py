@@ -25,6 +25,7 @@ from jaxtyping import Array, Float
 
 from .._core.initial import InitialState
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
+from .._misc import is_traced
 from .._misc import jsonable as _jsonable
 from . import residual_tests as rt
 from .decide import BIC_MARGIN, DM_Z, over_constant
@@ -96,6 +97,18 @@ class LevelCascade(AbstractModel):
     upper: float | None = None
     feed: str = eqx.field(static=True, default="input")
 
+    def __check_init__(self):
+        # also what a model file read back must satisfy (hbjax.load_model)
+        if self.feed not in FEEDS:
+            raise ValueError(f"`feed` must be one of {FEEDS}, got {self.feed!r}.")
+        if jnp.shape(self.params) != (9,) or jnp.shape(self.levels0) != (2,):
+            raise ValueError(f"`params` must have shape (9,) and `levels0` shape (2,), got "
+                             f"{jnp.shape(self.params)} and {jnp.shape(self.levels0)}.")
+        for name in ("w_scale", "y_scale"):
+            value = getattr(self, name)
+            if not is_traced(value) and not (math.isfinite(float(value)) and float(value) > 0):
+                raise ValueError(f"`{name}` must be finite and positive, got {value}.")
+
     def _feed(self, v, u0):
         w = v if self.feed == "input" else play_trajectory(self.base.backlash, v, u0)
         return w / self.w_scale
@@ -148,6 +161,8 @@ class LevelCascade(AbstractModel):
             cost = float(jnp.sum(resid(sol.value, None) ** 2))
             if math.isfinite(cost) and (best is None or cost < best[0]):
                 best = (cost, sol.value)
+        if best is None:  # no start gave a finite free run: the fitted levels stand
+            best = (math.inf, self.levels0)
         cost, x0 = best
         fitted = eqx.tree_at(lambda m: m.levels0, self, x0)
         y_hat = fitted.simulate_trajectory(v, jnp.zeros_like(v), 0.0)
