@@ -8,9 +8,9 @@ LevelDependentDynamics` cannot express: that law scales the nominal linear block
 level sets the inflow of the measured one and, where it overflows, caps it. The model
 replaces the linear block (its two levels are its state); its inflow is affine in the
 recorded input or in the nominal model's internal signal ``u`` (eq. (10)), whichever fits
-better. It is tried where the joint fits explain no part of the free-run error and the
-nominal free run's error depends on the output level (the regime test), and reported only
-on held-out evidence (see :func:`level_cascade_on_nominal`)."""
+better. It is tried under the output-error criterion where the nominal free run's error
+depends on the output level (the regime test), and reported only on held-out evidence (see
+:func:`level_cascade_on_nominal`)."""
 
 from __future__ import annotations
 
@@ -65,17 +65,25 @@ def _levels(p, x0, w, noise):
 
     with ``q`` Torricelli's outflow and ``s(t)`` the overflow (the excess over ``h``).
     Returns ``(x2, s)``."""
-    g, c, k1, o1, k2, k3, o2, h, r = (p[i] for i in range(9))
+    k3, o2 = p[5], p[6]
 
     def step(x, inputs):
         x1, x2 = x
         w_t, xi_t = inputs
-        out1 = _flow(x1 - o1)
-        filled = x1 + g * w_t + c - k1 * out1
-        spill = jnp.maximum(filled - h, 0.0)
-        return (filled - spill, x2 + k2 * out1 + r * spill - k3 * _flow(x2 - o2) + xi_t), (x2, spill)
+        x1_next, inflow, spill = _upper_step(p, x1, w_t)
+        return (x1_next, x2 + inflow - k3 * _flow(x2 - o2) + xi_t), (x2, spill)
 
     return jax.lax.scan(step, (x0[0], x0[1]), (w, noise))[1]
+
+
+def _upper_step(p, x1, w_t):
+    """The upper store over one sample: ``(x1(t+1), inflow of the measured store,
+    overflow)`` (the equations of :func:`_levels`)."""
+    g, c, k1, o1, k2, _, _, h, r = (p[i] for i in range(9))
+    out1 = _flow(x1 - o1)
+    filled = x1 + g * w_t + c - k1 * out1
+    spill = jnp.maximum(filled - h, 0.0)
+    return filled - spill, k2 * out1 + r * spill, spill
 
 
 class LevelCascade(AbstractModel):
@@ -126,15 +134,13 @@ class LevelCascade(AbstractModel):
     def predict_trajectory(self, v, y, u0):
         # the upstream level runs free (it is not measured); the measured one is the
         # recorded output one sample back
-        g, c, k1, o1, k2, k3, o2, h, r = (self.params[i] for i in range(9))
+        k3, o2 = self.params[5], self.params[6]
         w = self._feed(v, u0)
         x2m = (y - self.y_center) / self.y_scale
 
         def step(x1, w_t):
-            out1 = _flow(x1 - o1)
-            filled = x1 + g * w_t + c - k1 * out1
-            spill = jnp.maximum(filled - h, 0.0)
-            return filled - spill, k2 * out1 + r * spill
+            x1_next, inflow, _ = _upper_step(self.params, x1, w_t)
+            return x1_next, inflow
 
         _, inflow = jax.lax.scan(step, self.levels0[0], w)
         prev = jnp.concatenate([self.levels0[1:], x2m[:-1]])
@@ -147,28 +153,36 @@ class LevelCascade(AbstractModel):
         ``initial_state="estimate"``); ``InitialState.y0`` holds them in the output's
         units, ``[measured, upstream]``."""
         v, y = jnp.asarray(v), jnp.asarray(y)
-        w = self._feed(v, 0.0)
-        target = (y - self.y_center) / self.y_scale
-
-        def resid(x0, _):
-            return self._read(_levels(self.params, x0, w, jnp.zeros_like(w))[0]) - y
-
-        solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
-        best = None
-        for up in (-1.0, 0.0, 1.0, 2.0, float(self.levels0[0])):
-            x0 = jnp.asarray([up, float(target[0])])
-            sol = optx.least_squares(resid, solver, x0, max_steps=300, throw=False)
-            cost = float(jnp.sum(resid(sol.value, None) ** 2))
-            if math.isfinite(cost) and (best is None or cost < best[0]):
-                best = (cost, sol.value)
-        if best is None:  # no start gave a finite free run: the fitted levels stand
-            best = (math.inf, self.levels0)
-        cost, x0 = best
+        target0 = float((y[0] - self.y_center) / self.y_scale)
+        x0s = jnp.asarray([[up, target0] for up in (-1.0, 0.0, 1.0, 2.0, float(self.levels0[0]))])
+        fitted, costs = (np.asarray(a) for a in _start_levels(self, v, y, x0s))
+        costs = np.where(np.isfinite(costs), costs, np.inf)
+        i = int(np.argmin(costs))
+        # where no start gives a finite free run, the levels the model was fitted with stand
+        cost, x0 = ((float(costs[i]), jnp.asarray(fitted[i])) if np.isfinite(costs[i])
+                    else (math.inf, self.levels0))
         fitted = eqx.tree_at(lambda m: m.levels0, self, x0)
         y_hat = fitted.simulate_trajectory(v, jnp.zeros_like(v), 0.0)
         state = InitialState(self.y_center + self.y_scale * x0[::-1], jnp.zeros(()),
                              jnp.asarray(cost))
         return state, y_hat
+
+
+@eqx.filter_jit
+def _start_levels(model, v, y, x0s):
+    """The two starting levels fitted to ``y`` from every row of ``x0s`` (one batched
+    solve, compiled once per record length): ``(levels, costs)``."""
+    w = model._feed(v, 0.0)
+
+    def resid(x0, _):
+        return model._read(_levels(model.params, x0, w, jnp.zeros_like(w))[0]) - y
+
+    def one(x0):
+        x = optx.least_squares(resid, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8), x0,
+                               max_steps=300, throw=False).value
+        return x, jnp.sum(resid(x, None) ** 2)
+
+    return jax.vmap(one)(x0s)
 
 
 def _starts(rng, y0, n):
@@ -236,9 +250,9 @@ def _fit(feeds, target, clip, z0, feed_index):
 
 def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, names, tests,
                              sensor):
-    """The two-level cascade fitted by output error on the fitting segment, tried where no
-    mechanism was found and the output level explains at least MIN_LEVEL_SHARE of the
-    nominal free-run error's variance. ``sensor``: the record's plateau signatures
+    """The two-level cascade fitted by output error on the fitting segment, tried (by
+    :func:`hbjax.diagnose` under ``criterion="simulation"``) where the output level explains
+    at least MIN_LEVEL_SHARE of the nominal free-run error's variance. ``sensor``: the record's plateau signatures
     (:func:`hbjax._diagnose.residual_tests.plateaus`, ``(lower, upper)``, ``None`` for a
     side without one): the sensor's range the model reads its level through.
 
@@ -358,8 +372,9 @@ def _describe(ext, v, y):
     else:
         text += " The upstream store never overflows on this record."
     if ext.upper is not None or ext.lower is not None:
-        text += (f" The sensor reads within [{ext.lower}, {ext.upper}] (the record holds "
-                 f"its output exactly there).")
+        limits = " and ".join(f"{word} {level}" for word, level in
+                              (("at least", ext.lower), ("at most", ext.upper)) if level is not None)
+        text += (f" The sensor reads {limits} (the record holds its output exactly there).")
     return {
         "physics": text,
         "where": {"windows": [[0, len(y)]], "output_range": [lo, hi], "regime": "output level"},

@@ -193,7 +193,9 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
       ``'InitialCondition', 'e'``: real records rarely start at rest at zero; for a model
       extension such as a diagnosis effect, :func:`extension_state`: the base's play
       state and the past's response through the base's linear block by least squares,
-      the predictors starting from the play state only) or ``"zero"`` (the paper's zero
+      the predictors starting from the play state only; an extension with a state of its
+      own, such as the two levels of the diagnosis's two-store level law, estimates it
+      itself) or ``"zero"`` (the paper's zero
       initial conditions).
     - `horizon`: ``None`` for the free run, or an integer ``>= 1``.
     - `names`: labels of the models (default ``model 0``, ``model 1``, ...).
