@@ -44,6 +44,29 @@ def rank(findings):
     return out
 
 
+def place_by_free_run(findings, criterion, v, y, n_fit):
+    """A finding whose BIC is on another criterion than ``criterion`` (its
+    ``evidence["bic_criterion"]``: the two-store level law, fitted by output error, when the
+    diagnosis runs on one-step prediction) cannot be placed among the mechanisms by BIC. It
+    moves ahead of each mechanism just before it whose held-out free run it simulates
+    significantly better (Diebold-Mariano z > DM_Z on the held-out free-run errors), the
+    evidence every mechanism is reported on."""
+    from .._core.simulate import simulate
+
+    out = list(findings)
+    for f in [f for f in out if f.evidence.get("bic_criterion", criterion) != criterion]:
+        i = next(k for k, g in enumerate(out) if g is f)
+        r_f = (y - np.asarray(simulate(f.model, v)))[n_fit:]
+        while i > 0 and out[i - 1].mechanism:
+            r_g = (y - np.asarray(simulate(out[i - 1].model, v)))[n_fit:]
+            if not (np.all(np.isfinite(r_f)) and (not np.all(np.isfinite(r_g))
+                                                  or rt.diebold_mariano(r_g, r_f) > DM_Z)):
+                break
+            out[i - 1], out[i] = out[i], out[i - 1]
+            i -= 1
+    return out
+
+
 def statistics(y, fast_all, eps_all, ysim_all, n_fit, burn, lay, candidates, theta_fit):
     """BIC on the fitting segment (the criterion that was minimised) and held-out fits
     (exact simulator and predictor)."""

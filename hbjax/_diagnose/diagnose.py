@@ -47,7 +47,7 @@ from . import effects as fx
 from . import holdout as ho
 from . import verdict as vd
 from .clip_nominal import ON_NOMINAL, clip_on_nominal
-from .decide import BIC_MARGIN, DM_Z, decide, rank, statistics
+from .decide import BIC_MARGIN, DM_Z, decide, place_by_free_run, rank, statistics
 from .effects import base_theta, resolve
 from .fitting import choose_starts, evaluate_candidates, fit_candidates
 from .input_clip_nominal import ON_NOMINAL as INPUT_CLIP_ON_NOMINAL
@@ -241,11 +241,11 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
             table[INPUT_CLIP_ON_NOMINAL] = row
         if finding is not None:
             findings = [finding]
-    if fx.LevelDependentDynamics in effects and criterion == "simulation":
+    if fx.LevelDependentDynamics in effects:
         # a level fed through a second, unmeasured one: the level law of a cascade of
         # tanks, which the single-level law cannot express; an output-error model of a
-        # slow process, so tried under the output-error criterion only, where its free-run
-        # BIC is on the same footing as the other candidates'
+        # slow process under either criterion (placed by the held-out free run below where
+        # its BIC is not on the criterion of the others')
         sensor = (plateaus(y, -1), plateaus(y, +1))
         row, finding = level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all,
                                                 stats, [c.label for c in candidates], tests,
@@ -254,7 +254,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
             table[CASCADE] = row
         if finding is not None:
             findings = findings + [finding]
-    findings = rank(findings)
+    findings = place_by_free_run(rank(findings), criterion, v, y, n_fit)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
     bar.update(1)

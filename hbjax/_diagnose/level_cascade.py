@@ -8,9 +8,9 @@ LevelDependentDynamics` cannot express: that law scales the nominal linear block
 level sets the inflow of the measured one and, where it overflows, caps it. The model
 replaces the linear block (its two levels are its state); its inflow is affine in the
 recorded input or in the nominal model's internal signal ``u`` (eq. (10)), whichever fits
-better. It is tried under the output-error criterion where the nominal free run's error
-depends on the output level (the regime test), and reported only on held-out evidence (see
-:func:`level_cascade_on_nominal`)."""
+better. It is tried where the nominal free run's error depends on the output level (the
+regime test), fitted by output error under either criterion, and reported only on held-out
+evidence (see :func:`level_cascade_on_nominal`)."""
 
 from __future__ import annotations
 
@@ -251,7 +251,7 @@ def _fit(feeds, target, clip, z0, feed_index):
 def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, names, tests,
                              sensor):
     """The two-level cascade fitted by output error on the fitting segment, tried (by
-    :func:`hbjax.diagnose` under ``criterion="simulation"``) where the output level explains
+    :func:`hbjax.diagnose`, either criterion) where the output level explains
     at least MIN_LEVEL_SHARE of the nominal free-run error's variance. ``sensor``: the record's plateau signatures
     (:func:`hbjax._diagnose.residual_tests.plateaus`, ``(lower, upper)``, ``None`` for a
     side without one): the sensor's range the model reads its level through.
@@ -259,8 +259,14 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
     Decision (all required): BIC gain of its free run over the nominal model's > BIC_MARGIN
     on the fitting segment (after the burn-in, ``N_PARAMS`` parameters, and the nominal
     backlash's ``2 m`` for the internal feed; the feed and the start by the same BIC); on the held-out
-    part, a significantly smaller free-run error than the nominal model's and the refit's
-    (Diebold-Mariano z > DM_Z against each) and than a constant output. The model's sensor
+    part, a significantly smaller free-run error than the refit's and a constant output's
+    (Diebold-Mariano z > DM_Z against each), and a higher fit than the nominal model's.
+    Against the nominal model the gain need not be significant: a nominal model fitted on
+    the record being diagnosed (the plain path) saw the held-out part, which biases any test
+    there toward it, while the refit, like this model, saw only the fitting segment. Its
+    BIC is on the output error (``evidence["bic_criterion"]``), so under the prediction
+    criterion it is placed among the other findings by the held-out free run
+    (:func:`hbjax._diagnose.decide.place_by_free_run`). The model's sensor
     range reproduces the record's plateaus, so a clip found beside it does not outrank it
     (``evidence["record_signature"]``, :func:`hbjax._diagnose.decide.rank`).
 
@@ -269,6 +275,8 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
     if share < MIN_LEVEL_SHARE:
         return None, None
     y = np.asarray(y, float)
+    # its levels start where it fits them, but the nominal free run starts from rest
+    burn = max(burn, min(n_fit // 5, 300))
     clip = tuple(None if sig is None else sig["level"] for sig in sensor)
     sensor_signature = {side: sig for side, sig in zip(("lower", "upper"), sensor)
                         if sig is not None} or None
@@ -318,8 +326,8 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
     why = None
     if not dbic > BIC_MARGIN:
         why = "BIC gain over the nominal free run not above the margin"
-    elif not (dm_nom > DM_Z and fit_c > fit_nom):
-        why = "held-out free run not significantly better than the nominal model's"
+    elif not fit_c > fit_nom:
+        why = "held-out free run not better than the nominal model's"
     elif not dm_ref > DM_Z:
         why = "held-out free run not significantly better than the refit's"
     elif not dm_const > DM_Z:
@@ -334,6 +342,7 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
         "variant": "two levels in series with Torricelli outflows and an upstream overflow, "
                    "fitted by output error (the nominal linear block replaced)",
         "reference": "nominal", "base": "replaced", "feed": FEEDS[kb], "bic": bic,
+        "bic_criterion": "simulation",
         "delta_bic_vs_nominal": dbic, "delta_bic_vs_refit": stats[ref_i]["bic"] - bic,
         "dm_z": dm_nom, "dm_z_vs_refit": dm_ref, "dm_z_over_constant": dm_const,
         "reference_fit": fit_nom, "refit_fit": rt.fit_percent_unchecked(
