@@ -247,9 +247,10 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
         # slow process under either criterion (placed by the held-out free run below where
         # its BIC is not on the criterion of the others')
         sensor = (plateaus(y, -1), plateaus(y, +1))
+        found = next((f for f in rank(findings) if f.mechanism), None)
         row, finding = level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all,
                                                 stats, [c.label for c in candidates], tests,
-                                                sensor)
+                                                sensor, found)
         if row is not None:
             table[CASCADE] = row
         if finding is not None:

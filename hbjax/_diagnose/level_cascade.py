@@ -25,6 +25,7 @@ from jaxtyping import Array, Float
 
 from .._core.initial import InitialState
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
+from .._core.simulate import simulate
 from .._misc import is_traced
 from .._misc import jsonable as _jsonable
 from . import residual_tests as rt
@@ -248,11 +249,28 @@ def _fit(feeds, target, clip, z0, feed_index):
     return np.asarray(z), feed_index[keep]
 
 
+def level_share_left(found, v, y, n_fit, burn, tests) -> float:
+    """The share of the free-run error's variance on the fitting segment that the output
+    level explains (:func:`hbjax._diagnose.residual_tests.regime_dependence`), left by the
+    best mechanism ``found`` so far, or by the nominal model where there is none: a level
+    law is not needed where a mechanism already found (a sensor's clip, a curved sensor)
+    took the level dependence out of the error."""
+    nominal = float(tests.get("regime_output", {}).get("explained", 0.0))
+    if found is None:
+        return nominal
+    y_f = np.asarray(simulate(found.model, v))[burn:n_fit]
+    r = np.asarray(y)[burn:n_fit] - y_f
+    if not np.all(np.isfinite(r)):
+        return nominal
+    return float(rt.regime_dependence(r, y_f)["explained"])
+
+
 def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, names, tests,
-                             sensor):
+                             sensor, found=None):
     """The two-level cascade fitted by output error on the fitting segment, tried (by
     :func:`hbjax.diagnose`, either criterion) where the output level explains
-    at least MIN_LEVEL_SHARE of the nominal free-run error's variance. ``sensor``: the record's plateau signatures
+    at least MIN_LEVEL_SHARE of the free-run error's variance that the nominal model, or the
+    best mechanism ``found`` so far, leaves (:func:`level_share_left`). ``sensor``: the record's plateau signatures
     (:func:`hbjax._diagnose.residual_tests.plateaus`, ``(lower, upper)``, ``None`` for a
     side without one): the sensor's range the model reads its level through.
 
@@ -271,9 +289,12 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
     (``evidence["record_signature"]``, :func:`hbjax._diagnose.decide.rank`).
 
     Returns ``(table_row | None, Finding | None)``."""
-    share = float(tests.get("regime_output", {}).get("explained", 0.0))
+    share = level_share_left(found, v, y, n_fit, burn, tests)
     if share < MIN_LEVEL_SHARE:
-        return None, None
+        if found is None:
+            return None, None
+        return {"level_share": share, "decision": f"not tried: the output level explains "
+                f"{share:.0%} of the free-run error {found.effect} leaves"}, None
     y = np.asarray(y, float)
     # its levels start where it fits them, but the nominal free run starts from rest
     burn = max(burn, min(n_fit // 5, 300))
