@@ -47,20 +47,24 @@ def rank(findings):
 def place_by_free_run(findings, criterion, v, y, n_fit):
     """A finding whose BIC is on another criterion than ``criterion`` (its
     ``evidence["bic_criterion"]``: the two-store level law, fitted by output error, when the
-    diagnosis runs on one-step prediction) cannot be placed among the mechanisms by BIC. It
-    moves ahead of each mechanism just before it whose held-out free run it simulates
-    significantly better (Diebold-Mariano z > DM_Z on the held-out free-run errors), the
-    evidence every mechanism is reported on."""
+    diagnosis runs on one-step prediction) cannot be placed among the mechanisms by BIC: it
+    goes after the last mechanism, then moves ahead of each mechanism just before it whose
+    held-out free run it simulates significantly better (Diebold-Mariano z > DM_Z on the
+    held-out free-run errors), the evidence every mechanism is reported on."""
     from .._core.simulate import simulate
+
+    def held_out_error(g):
+        return (y - np.asarray(simulate(g.model, v)))[n_fit:]
 
     out = list(findings)
     for f in [f for f in out if f.evidence.get("bic_criterion", criterion) != criterion]:
-        i = next(k for k, g in enumerate(out) if g is f)
-        r_f = (y - np.asarray(simulate(f.model, v)))[n_fit:]
-        while i > 0 and out[i - 1].mechanism:
-            r_g = (y - np.asarray(simulate(out[i - 1].model, v)))[n_fit:]
-            if not (np.all(np.isfinite(r_f)) and (not np.all(np.isfinite(r_g))
-                                                  or rt.diebold_mariano(r_g, r_f) > DM_Z)):
+        out.remove(f)
+        i = sum(g.mechanism for g in out)  # mechanisms come first (rank)
+        out.insert(i, f)
+        r_f = held_out_error(f)
+        while i > 0 and np.all(np.isfinite(r_f)):
+            r_g = held_out_error(out[i - 1])
+            if np.all(np.isfinite(r_g)) and not rt.diebold_mariano(r_g, r_f) > DM_Z:
                 break
             out[i - 1], out[i] = out[i], out[i - 1]
             i -= 1
