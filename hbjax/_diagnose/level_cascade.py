@@ -294,10 +294,10 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
     (``evidence["record_signature"]``, :func:`hbjax._diagnose.decide.rank`).
 
     Returns ``(table_row | None, Finding | None)``."""
+    if float(tests.get("regime_output", {}).get("explained", 0.0)) < MIN_LEVEL_SHARE:
+        return None, None  # before simulating the mechanism found (a compilation per kind)
     share = level_share_left(found, v, y, n_fit, burn, tests)
-    if share < (MIN_LEVEL_SHARE if found is None else LEFT_LEVEL_SHARE):
-        if found is None:
-            return None, None
+    if found is not None and share < LEFT_LEVEL_SHARE:
         return {"level_share": share, "decision": f"not tried: the output level explains "
                 f"{share:.0%} of the free-run error {found.effect} leaves"}, None
     y = np.asarray(y, float)
