@@ -41,17 +41,72 @@ for _flag, _value in _XLA_TEST_FLAGS.items():
 import jax  # noqa: E402
 
 
-# One persistent compilation cache for the whole run, in a temporary directory: the xdist
-# workers and the subprocesses (notebooks, command line, demo, determinism jobs) compile many
-# of the same programs, and the second compilation becomes a file read. Not the user's
-# ~/.cache, which thousands of test programs would only fill. The first process (pytest's
-# controller) creates it and removes it at the end; the workers and subprocesses inherit it
-# through the environment. The cache's own behaviour is tested in fresh subprocesses
-# (tests/test_cold_start.py), which set or clear these variables themselves.
+# One persistent compilation cache shared by the run's processes: the xdist workers and the
+# subprocesses (notebooks, command line, demo, determinism jobs) compile many of the same
+# programs, and the second compilation becomes a file read. It is kept between runs, in a
+# directory of its own beside the user's hbjax cache (not in it: the suite's programs carry
+# its compiler flags, which a user's never do), so that a run on an unchanged program
+# reads the compiled code instead of compiling it again -- the suite's time is mostly
+# compilation (benchmarks/RESULTS.md, "Test suite duration"). JAX keys every entry on the
+# program, the flags, the backend and its own version, so a kept entry cannot change a
+# result; past a size cap the oldest entries are removed when a run starts, and the
+# directory can be deleted at any time. ``HBJAX_TEST_CACHE_DIR`` moves it; ``HBJAX_TEST_CACHE_DIR=run``
+# gives each run a fresh temporary one, removed at the end. The cache's own behaviour is
+# tested in fresh subprocesses (tests/test_cold_start.py), which set or clear these
+# variables themselves.
 _RUN_CACHE_OWNER = "HBJAX_TEST_RUN_CACHE"
+_KEPT_CACHE_BYTES = 2 * 1024 ** 3
+
+
+def _trim(path: str, cap: int = _KEPT_CACHE_BYTES) -> None:
+    """Remove the oldest entries of the suite's own cache directory until it holds half of
+    ``cap``, where it holds more (JAX's own size limit rescans the directory at every
+    write, which thousands of entries make slow)."""
+    entries = []
+    with os.scandir(path) as it:
+        for entry in it:
+            # JAX's entries only: nothing else in a directory someone chose is touched
+            if entry.name.endswith(("-cache", "-atime")) and entry.is_file(follow_symlinks=False):
+                stat = entry.stat(follow_symlinks=False)
+                entries.append((max(stat.st_atime, stat.st_mtime), stat.st_size, entry.path))
+    total = sum(size for _, size, _ in entries)
+    if total <= cap:
+        return
+    for _, size, file in sorted(entries):
+        if total <= cap // 2:
+            break
+        try:
+            os.remove(file)
+            total -= size
+        except OSError:  # another run removed it first
+            pass
+
+
+def _kept_cache_dir() -> str | None:
+    """The directory kept between runs, or ``None`` where it cannot be written."""
+    chosen = os.environ.get("HBJAX_TEST_CACHE_DIR", "").strip()
+    if chosen == "run":
+        return None
+    if chosen:
+        path = os.path.expanduser(chosen)
+    else:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        path = os.path.join(base, "hbjax", "test-suite-jax")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:  # a read-only home: a cache for this run only
+        return None
+    return path if os.access(path, os.W_OK) else None
+
+
 if not os.environ.get("HBJAX_CACHE_DIR") and not os.environ.get("HBJAX_NO_COMPILATION_CACHE"):
-    os.environ["HBJAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="hbjax-test-cache-")
-    os.environ[_RUN_CACHE_OWNER] = str(os.getpid())
+    _kept = _kept_cache_dir()
+    if _kept is None:
+        os.environ["HBJAX_CACHE_DIR"] = tempfile.mkdtemp(prefix="hbjax-test-cache-")
+        os.environ[_RUN_CACHE_OWNER] = str(os.getpid())
+    else:
+        _trim(_kept)
+        os.environ["HBJAX_CACHE_DIR"] = _kept
 
 
 def pytest_unconfigure(config):
@@ -70,10 +125,11 @@ from hbjax._core.mappings import mapping_count  # noqa: E402
 # test_validation_tools: about ten minutes) for the end of the run, where one worker could
 # finish minutes before the other. Longest first is the classic remedy for that tail.
 LONGEST_FIRST = (
-    "test_refine.py", "test_diagnose.py", "test_notebooks.py", "test_diagnose_physics.py",
-    "test_diagnose_independent.py", "test_fit.py", "test_robustness.py",
-    "test_refine_buckets.py", "test_architecture.py", "test_validation_tools.py",
-    "test_giri_band.py", "test_identify_generalises.py", "test_determinism.py",
+    "test_refine.py", "test_diagnose.py", "test_notebooks.py", "test_diagnose_independent.py",
+    "test_diagnose_level_cascade.py", "test_robustness.py", "test_validation_tools.py",
+    "test_diagnose_physics.py", "test_refine_buckets.py", "test_identify_generalises.py",
+    "test_output_unit.py", "test_giri_band.py", "test_fit_gauge.py", "test_fit.py",
+    "test_architecture.py", "test_determinism.py", "test_adequacy.py",
 )
 
 

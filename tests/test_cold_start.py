@@ -100,3 +100,21 @@ def test_bucket_padding_never_reports_a_divergence_of_the_tail():
     assert y.shape == (40,) and bool(jnp.all(jnp.isfinite(y)))
     with pytest.raises(ValueError, match="overflows"):
         hbjax.simulate(unstable, np.ones(2000) * 3.0)
+
+
+def test_suite_cache_trim_removes_only_the_oldest_cache_entries(tmp_path):
+    # The test suite keeps its compilation cache between runs (tests/conftest.py) and trims
+    # it when a run starts: the oldest entries go first, down to half the cap, and nothing
+    # but JAX's own entries is ever removed from the directory.
+    from conftest import _trim
+
+    for i in range(6):
+        entry = tmp_path / f"jit_f-{i}-cache"
+        entry.write_bytes(b"x" * 100)
+        os.utime(entry, (1000 + i, 1000 + i))
+    (tmp_path / "notes.txt").write_bytes(b"y" * 1000)
+    _trim(str(tmp_path), cap=1000)  # 600 bytes of entries: under the cap, nothing goes
+    assert len(list(tmp_path.glob("*-cache"))) == 6
+    _trim(str(tmp_path), cap=500)  # over: the oldest go until at most 250 bytes are left
+    assert sorted(p.name for p in tmp_path.glob("*-cache")) == ["jit_f-4-cache", "jit_f-5-cache"]
+    assert (tmp_path / "notes.txt").read_bytes() == b"y" * 1000
