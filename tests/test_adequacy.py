@@ -10,6 +10,7 @@ generator (``tests/generators/paper_class.py``).
   such a result must not be a success.
 """
 
+import jax
 import numpy as np
 import pytest
 
@@ -113,3 +114,30 @@ def test_outputs_unrelated_to_the_input_are_not_successes(criterion):
     assert len(successes) <= 1, (successes, codes)
     assert any(c.startswith("the model's input path does not predict") for c in codes), codes
     assert all(c == "success" for c in controls), controls
+
+
+@pytest.mark.parametrize("criterion", ["prediction", "simulation"])
+def test_noise_free_outputs_unrelated_to_the_input_are_not_successes(criterion):
+    # An output its own past predicts to rounding (a sine, a decaying exponential: no
+    # noise at all) leaves both squared errors of the input-effect test at rounding level;
+    # their ratio once read as an overwhelming input effect, and `fit` called such a model
+    # (branches ~1e-15, the whole fit from the initial state) a success. Random outputs of
+    # that kind, random inputs; the control is the system's own noise-free output.
+    rng = np.random.default_rng(2001)
+    t = np.arange(1000)
+    for d in range(3):
+        sys = random_paper_system(rng, n=2, m=3)  # one structure: one compiled refinement
+        v = random_input(rng, INPUT_KINDS[d % len(INPUT_KINDS)], t.size, 2 * sys["h_m"])
+        if d % 2:
+            y = rng.uniform(0.5, 5) * rng.uniform(0.99, 0.999) ** t + rng.uniform(-1, 1)
+        else:
+            y = rng.uniform(0.5, 5) * np.sin(rng.uniform(0.01, 0.3) * t + rng.uniform(0, 6))
+        res = hbjax.refine(to_hbjax(sys), [(v, y)], criterion=criterion,
+                           initial_state="estimate", throw=False)
+        assert res.result != hbjax.RESULTS.successful, (d, res.residual_p)
+        own = hbjax.refine(to_hbjax(sys), [(v, simulate_numpy(sys, v)[0])], criterion=criterion,
+                           initial_state="estimate", throw=False)
+        assert own.result == hbjax.RESULTS.successful, (d, own.message)
+    fitted = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.key(0), starts=4,
+                       criterion=criterion, throw=False, progress=False)
+    assert fitted.result == hbjax.RESULTS.no_input_effect, fitted.message

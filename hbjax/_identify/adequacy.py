@@ -36,6 +36,10 @@ LAGS = 25
 #: Own-past lags of the output-error fit's input test: enough to whiten the output's own
 #: dynamics, so that an independent, slowly varying regressor cannot look significant.
 OWN_LAGS = 10
+#: Relative size (in machine epsilons) of the rounding errors of a one-step prediction or a
+#: least-squares fit: below ``ROUNDING eps`` times the output's centred sum of squares a
+#: sum of squared errors is taken as rounding, not noise (:func:`_rounding`).
+ROUNDING = 1e3
 #: Level of each test: a result whose input effect is not significant at it is refused; a
 #: free-run fit below the floor is accepted as the noise's only when whiteness and
 #: independence are not rejected at it.
@@ -66,12 +70,12 @@ def _one_step(model, v, y, u, mask):
 
 
 def _errors(model, v, y, u, mask):
-    """``(ssr, ssr_ar, n)`` of one record over the samples ``t >= max(na, nb)`` (recorded
-    samples only): the model's squared one-step error ``sum e^2``,
+    """``(ssr, ssr_ar, n, spread)`` of one record over the samples ``t >= max(na, nb)``
+    (recorded samples only): the model's squared one-step error ``sum e^2``,
     ``e = A(q^-1) y - B(q^-1) u``; that of the best linear predictor of ``y`` on its own
     ``na`` past values and a constant (from the moments ``Z^T Z`` of the rows
     ``[y(t), y(t-1..na), 1]``, no factorisation of the N-row regression); the number of
-    rows."""
+    rows; the centred sum of squares of ``y`` over them."""
     na, nb = model.arx.na, model.arx.nb
     skip, T = max(na, nb), y.shape[0]
     rows = jnp.arange(T) >= skip
@@ -85,9 +89,22 @@ def _errors(model, v, y, u, mask):
     s = moments[:na + 1, -1]
     c = moments[:na + 1, :na + 1] - jnp.outer(s, s) / jnp.maximum(n, 1.0)  # centred
     if na == 0:
-        return ssr, c[0, 0], n
+        return ssr, c[0, 0], n, c[0, 0]
     coef = jnp.linalg.lstsq(c[1:, 1:], c[1:, 0])[0]
-    return ssr, jnp.maximum(c[0, 0] - c[1:, 0] @ coef, 0.0), n
+    return ssr, jnp.maximum(c[0, 0] - c[1:, 0] @ coef, 0.0), n, c[0, 0]
+
+
+def _rounding(spread, dtype):
+    """The part of a sum of squared errors that rounding alone can leave: ``ROUNDING eps``
+    times the output's centred sum of squares ``spread`` (the least squares here run on
+    moments, whose cancellation loses digits relative to ``spread``, not to the error).
+
+    An output that its own past predicts to rounding (noise-free, e.g. a decaying
+    exponential or a sine unrelated to the input) leaves both squared errors of a test at
+    this level and ``sigma^2`` with them: a drop measured in such a ``sigma^2`` is a ratio
+    of two rounding errors, which can be astronomically "significant". Drops and
+    ``sigma^2`` are therefore taken beyond this level."""
+    return ROUNDING * jnp.finfo(dtype).eps * spread
 
 
 def _whiteness(e, v, valid, n, lags: int):
@@ -123,12 +140,13 @@ def input_effect_p(model, recordings, sources, free: int) -> Float[Array, ""]:
     ``sources``: the play operator's output of each record (core operator), as
     :func:`hbjax._identify.quality.simulation_fit` computed it; ``free``: the number of
     free parameters."""
-    ssr = ssr_ar = n = 0.0
+    ssr = ssr_ar = n = spread = 0.0
     for (v, y, mask), u in zip(map(unpack, recordings), sources):
-        one, ar, count = _errors(model, v, y, u, mask)
-        ssr, ssr_ar, n = ssr + one, ssr_ar + ar, n + count
-    sigma2 = ssr / jnp.maximum(n - free, 1.0)
-    drop = (ssr_ar - ssr) / jnp.maximum(sigma2, jnp.finfo(sigma2.dtype).tiny)
+        one, ar, count, centred = _errors(model, v, y, u, mask)
+        ssr, ssr_ar, n, spread = ssr + one, ssr_ar + ar, n + count, spread + centred
+    rounding = _rounding(spread, ssr.dtype)
+    sigma2 = jnp.maximum(ssr, rounding) / jnp.maximum(n - free, 1.0)
+    drop = jnp.maximum(ssr_ar - ssr - rounding, 0.0) / jnp.maximum(sigma2, jnp.finfo(ssr.dtype).tiny)
     p = chi2_sf(drop, model.arx.nb + 2 * model.backlash.m - 1)
     return jnp.where(jnp.isfinite(p), p, jnp.nan)
 
@@ -143,7 +161,7 @@ def simulated_input_effect_p(model, recordings, sources, free: int, lags: int = 
     (a Granger-type test: the output's own past is a full noise model, so a free run fitted
     by chance to a slowly wandering output unrelated to the input adds nothing to it). The
     ``free`` parameters fitted to ``y`` are added to the degrees of freedom."""
-    drop = ssr1 = n = 0.0
+    drop = ssr1 = n = spread = 0.0
     for (v, y, mask), u in zip(map(unpack, recordings), sources):
         y_sim = all_pole(model.arx.a, lag_sum(model.arx.b, u))
         T = y.shape[0]
@@ -158,11 +176,15 @@ def simulated_input_effect_p(model, recordings, sources, free: int, lags: int = 
         r0 = target - own @ jnp.linalg.lstsq(own, target)[0]
         r1 = target - full @ jnp.linalg.lstsq(full, target)[0]
         s0, s1 = jnp.sum(r0**2), jnp.sum(r1**2)
+        centred = jnp.sum(jnp.where(rows > 0, target - jnp.sum(target) / jnp.sum(rows), 0.0) ** 2)
         drop, ssr1, n = drop + jnp.maximum(s0 - s1, 0.0), ssr1 + s1, n + jnp.sum(rows)
+        spread = spread + centred
     params = len(recordings) * (2 * lags + 2)
-    sigma2 = ssr1 / jnp.maximum(n - params, 1.0)
+    rounding = _rounding(spread, ssr1.dtype)
+    sigma2 = jnp.maximum(ssr1, rounding) / jnp.maximum(n - params, 1.0)
+    drop = jnp.maximum(drop - rounding, 0.0)
     # y_sim was itself fitted to y: its ``free`` parameters add their own chance agreement.
-    p = chi2_sf(drop / jnp.maximum(sigma2, jnp.finfo(sigma2.dtype).tiny),
+    p = chi2_sf(drop / jnp.maximum(sigma2, jnp.finfo(ssr1.dtype).tiny),
                 len(recordings) * (lags + 1) + free)
     return jnp.where(jnp.isfinite(p), p, jnp.nan)
 
