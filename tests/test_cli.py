@@ -58,6 +58,17 @@ def test_simulate_without_noise_matches_library_exactly(tmp_path, system):
     np.testing.assert_array_equal(rec.y, np.asarray(hbjax.simulate(system, v)))
 
 
+def test_simulate_keeps_the_input_files_sampling_period(tmp_path, system):
+    hbjax.save_model(tmp_path / "m.json", system)
+    v = np.sin(np.linspace(0, 20, 200)) * 5
+    hbjax.save_recording(tmp_path / "in.csv", hbjax.Recording(v, np.zeros_like(v), dt=0.05))
+    assert main(["simulate", "--model", str(tmp_path / "m.json"), "--input",
+                 str(tmp_path / "in.csv"), "--out", str(tmp_path / "y.csv")]) == 0
+    rec = hbjax.load_recording(tmp_path / "y.csv")
+    assert rec.dt == 0.05
+    np.testing.assert_array_equal(rec.y, np.asarray(hbjax.simulate(system, v)))
+
+
 def test_errors_are_one_line_and_nonzero(tmp_path, system):
     hbjax.save_model(tmp_path / "m.json", system)
     (tmp_path / "bad.csv").write_text("v\n1.0\nabc\n")

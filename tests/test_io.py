@@ -3,6 +3,8 @@
 import dataclasses
 import json
 import os
+import subprocess
+import sys
 
 import equinox as eqx
 import jax
@@ -439,3 +441,27 @@ def test_written_files_get_ordinary_permissions(tmp_path, system):
     finally:
         os.umask(umask)
     assert p.stat().st_mode & 0o777 == 0o644
+
+
+def test_float64_file_loaded_without_x64_is_refused_unless_exact(tmp_path):
+    # JAX's 32-bit mode would round float64 coefficients silently (-1.2 -> -1.2000000477).
+    exact = hbjax.Hammerstein(hbjax.Backlash([0.0, 1.0], [1.0, 1.0]), hbjax.ARX([-1.25, 0.5], [1.0, 0.5]))
+    rounded = hbjax.Hammerstein(hbjax.Backlash([0.0, 1.0], [1.0, 1.0]), hbjax.ARX([-1.2, 0.5], [1.0, 0.3]))
+    hbjax.save_model(tmp_path / "exact.json", exact)
+    hbjax.save_model(tmp_path / "rounded.json", rounded)
+    script = (
+        "import hbjax, sys\n"
+        "m = hbjax.load_model(sys.argv[1])\n"
+        "print(m.arx.a.dtype, float(m.arx.a[0]))\n"
+        "try:\n"
+        "    hbjax.load_model(sys.argv[2])\n"
+        "except hbjax.ModelFileError as exc:\n"
+        "    print('refused:', exc)\n")
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    out = subprocess.run([sys.executable, "-c", script, str(tmp_path / "exact.json"),
+                          str(tmp_path / "rounded.json")], env=dict(env, JAX_PLATFORMS="cpu"),
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0] == "float32 -1.25"
+    assert lines[1].startswith("refused:") and "jax_enable_x64" in lines[1]

@@ -154,3 +154,25 @@ def test_brfd_recordings_carry_velocity_and_actuator_forces():
         slope = np.gradient(rec.v, rec.dt)
         assert np.corrcoef(slope, rec.channels["velocity"])[0, 1] > 0.99
         assert np.std(rec.channels["velocity"]) / np.std(slope) == pytest.approx(1.0, abs=0.01)
+
+
+def test_dataframe_round_trip_keeps_the_exact_sampling_period():
+    # The index holds t0 + k dt rounded; its steps are dt only up to rounding (0.1 came
+    # back as 0.10000000000000009). The frame carries the period itself.
+    for dt in (0.1, 0.01, 1 / 3, 7e-3):
+        rec = hbjax.Recording(np.arange(1000.0) % 7, np.arange(1000.0) % 5, dt=dt, t0=2.5)
+        back = hbjax.Recording.from_dataframe(rec.to_dataframe(), input="v", output="y")
+        assert back.dt == dt and back.t0 == 2.5
+    # a frame whose index was resampled afterwards keeps its own spacing
+    frame = rec.to_dataframe().iloc[::2]
+    assert hbjax.Recording.from_dataframe(frame, input="v", output="y").dt == pytest.approx(2 * dt)
+
+
+def test_estimate_initial_state_takes_a_recording(system):
+    model = system
+    v = np.repeat(np.random.default_rng(0).uniform(-8, 8, 40), 10)
+    y = np.asarray(hbjax.simulate(model, v, u0=1.0, y0=[0.5, -0.2]))
+    rec = hbjax.Recording(v, y)
+    a, b = hbjax.estimate_initial_state(model, rec), hbjax.estimate_initial_state(model, v, y)
+    np.testing.assert_array_equal(np.asarray(a.y0), np.asarray(b.y0))
+    assert float(a.u0) == float(b.u0)

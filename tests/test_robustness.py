@@ -574,6 +574,33 @@ bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*unknown effect name\\(s\\) in `-
 bad(CLI, "hbjax identify giri", CLIError, "exit 1: .*`y\\d` has \\d+ samples; it must cover at least", lambda t: cli("identify", "giri", "--design", "n=2,m=3,h_m=4", *[text_file(t, f"y{k}.csv", "y\n1\n2\n3\n") for k in (1, 2, 3)], "--out", t / "m2.json"))
 
 
+bad(CLI, "hbjax diagnose", CLIError, "exit 1: .*--effects '' names no effect", lambda t: cli("diagnose", "--model", model_file(t), text_file(t, "rec.csv", DIAG_CSV), "--effects", ""))
+
+
+def frame(**columns):
+    import pandas
+
+    return pandas.DataFrame(columns)
+
+
+# --- found by a probe of the public API: data a cast or a default would have let through
+bad(DTYPE, "Recording", TypeError, "the input column 'v' must hold real numbers, got dtype complex", lambda t: hbjax.Recording.from_dataframe(frame(v=V + 1j, y=Y), input="v", output="y"))
+bad(DTYPE, "Recording", TypeError, "the channel column 'c' must hold real numbers", lambda t: hbjax.Recording.from_dataframe(frame(v=V, y=Y, c=V * 1j), input="v", output="y"))
+bad(DTYPE, "Recording", TypeError, "the input column 'v' must hold real numbers", lambda t: hbjax.Recording.from_dataframe(frame(v=V.astype(str), y=Y), input="v", output="y"))
+bad(OPTION, "Recording", ValueError, "the input and the output are the same column", lambda t: hbjax.Recording.from_dataframe(frame(v=V, y=Y), input="v", output="v"))
+bad(DTYPE, "compare", TypeError, "`v` must be real, got complex", lambda t: hbjax.compare(M, frame(v=V + 1j, y=Y)))
+bad(DTYPE, "resid", TypeError, "`v` must be a numeric array, got dtype object", lambda t: hbjax.resid(M, frame(v=V.astype(str), y=Y)))
+bad(WRONG_TYPE, "compare", TypeError, "`v` is a recording, which holds its own output", lambda t: hbjax.compare(M, hbjax.Recording(V, Y), Y))
+bad(IDENT, "compare", ValueError, "`y` is constant: the fit .* is undefined", lambda t: hbjax.compare(M, V, np.full(V.shape, 1000.0)))
+bad(IDENT, "fit", ValueError, "the input `v` of `recordings` is constant in every record", lambda t: hbjax.fit((np.ones(400), np.linspace(0, 1, 400)), na=2, nb=2, m=3, key=jax.random.key(0)))
+bad(IDENT, "select_structure", ValueError, "the input `v` of `recordings` is constant", lambda t: hbjax.select_structure((np.ones(400), np.linspace(0, 1, 400)), na=2, nb=2, m=3, key=jax.random.key(0), progress=False))
+bad(IDENT, "diagnose", ValueError, "`v` is constant: a constant input holds the backlash", lambda t: hbjax.diagnose(M, np.ones(600), np.linspace(0, 1, 600)))
+bad(ORDER, "fit", ValueError, "`m` must be an integer >= 2 to identify a model, got 1", lambda t: hbjax.fit(REC, na=2, nb=2, m=1, key=jax.random.key(0)))
+bad(ORDER, "select_structure", ValueError, "`m` must be an integer >= 2 to identify a model, got 1", lambda t: hbjax.select_structure(REC, na=2, nb=2, m=[1, 2], key=jax.random.key(0), progress=False))
+bad(RANGE, "Recording", TypeError, "`start` must be an integer sample index or None, got 2.5", lambda t: hbjax.Recording(V, Y).slice(2.5, 10))
+bad(HOSTILE, "load_model", ModelFileError, "\\.kind` must be 'jax' or 'numpy', got 'pickle'", lambda t: hbjax.load_model(text_file(t, "m.json", model_file(t).read_text().replace('"kind": "jax"', '"kind": "pickle"'))))
+
+
 # ----------------------------------------------------------------------------- accepted inputs
 
 

@@ -184,7 +184,7 @@ def test_resid_false_alarm_rate_and_power():
     0.01 over 40 seeds; a wrong linear block is rejected every time."""
     model = hbjax.default_system()
     wrong = hbjax.Hammerstein(model.backlash, hbjax.ARX([-1.0, 0.35], [1.0, 0.5]))
-    outside, n_lags, alarms, rejected, seeds = 0, 0, 0, 0, 40
+    outside, n_lags, alarms, rejected, biased, seeds = 0, 0, 0, 0, 0, 40
     for seed in range(seeds):
         rng = np.random.default_rng(100 + seed)
         v = rng.uniform(-8, 8, 100).repeat(10)
@@ -193,11 +193,14 @@ def test_resid_false_alarm_rate_and_power():
         outside += np.sum(np.abs(r.autocorrelation) > r.band)
         outside += np.sum(np.abs(r.cross_correlation) > r.band)
         n_lags += r.autocorrelation.size + r.cross_correlation.size
-        alarms += (r.p_whiteness < 0.01) + (r.p_independence < 0.01)
+        alarms += (r.p_whiteness < 0.01) + (r.p_independence < 0.01) + (r.p_mean < 0.01)
         rejected += not hbjax.resid(wrong, v, y).passed
+        # an offset of two noise standard deviations the model lacks: only the mean sees it
+        biased += not hbjax.resid(model, v, y + 0.6).passed
     assert 0.001 <= outside / n_lags <= 0.03
-    assert alarms / (2 * seeds) <= 0.06  # expected 0.01; binomial 99.9% bound about 0.05
+    assert alarms / (3 * seeds) <= 0.06  # expected 0.01; binomial 99.9% bound about 0.05
     assert rejected == seeds
+    assert biased == seeds
 
 
 # --------------------------------------------------------------------------- structure

@@ -31,9 +31,10 @@ def _read_recording(path, args):
     return load_recording(path, input=_column_key(args.input), output=_column_key(args.output))
 
 
-def _read_column(path, key, role):
+def _read_column(path, key, role, *, with_dt=False):
     """One numeric column of a CSV file; default: the only column, or ``role``'s default
-    (``v``/``y`` by name in the layout hbjax writes, else the first/second column)."""
+    (``v``/``y`` by name in the layout hbjax writes, else the first/second column).
+    ``with_dt``: also the file's sampling period (``None`` when it does not say)."""
     from .._io.files import check_readable
     from .._io.csvtable import read_csv_table
 
@@ -41,7 +42,8 @@ def _read_column(path, key, role):
     if key is None:
         v_col, y_col = table.default_columns()
         key = 0 if table.n_columns == 1 else (v_col if role == "input" else y_col)
-    return table.column(table.index(_column_key(key), role))
+    column = table.column(table.index(_column_key(key), role))
+    return (column, table.dt) if with_dt else column
 
 
 def _read_giri_record(path, args):
@@ -224,12 +226,12 @@ def cmd_simulate(args) -> int:
         raise ValueError(f"--u0 must be a finite number, got {args.u0}.")
     _check_outputs(args, {"--out": args.out}, inputs=[args.model, args.input])
     model = load_model(args.model)
-    v = _read_column(args.input, args.column, "input")
+    v, dt = _read_column(args.input, args.column, "input", with_dt=True)
     noise = None
     if args.noise_std > 0:
         noise = args.noise_std * jax.random.normal(jax.random.PRNGKey(args.seed), v.shape, jnp.float64)
     y = simulate(model, v, noise, u0=args.u0)
-    save_recording(args.out, Recording(v, jax.device_get(y)), overwrite=args.force)
+    save_recording(args.out, Recording(v, jax.device_get(y), dt=dt), overwrite=args.force)
     print(f"wrote {args.out}: {v.shape[0]} samples (columns v, y)")
     return 0
 
@@ -295,8 +297,12 @@ def cmd_diagnose(args) -> int:
                          f"got {type(model).__name__}.")
     rec = _read_recording(args.recording, args)
     effects = None
-    if args.effects:
+    if args.effects is not None:
         effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+        if not effects:  # e.g. an empty shell variable: not a request for every effect
+            raise ValueError(f"--effects {args.effects!r} names no effect; give a comma-"
+                             "separated list of effect names, or leave --effects out to try "
+                             "them all.")
     options = {} if args.criterion is None else {"criterion": args.criterion}
     report = diagnose(model, rec.v, rec.y, holdout=args.holdout, effects=effects, **options)
     print(f"{rec.source}: {len(rec)} samples, nominal model {args.model}")

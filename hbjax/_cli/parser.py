@@ -115,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="The main job on the embedded default system.",
         example="hbjax demo --out demo_output",
     )
-    demo.add_argument("--out", default="demo_output", help="folder for the figures and table")
+    demo.add_argument("--out", default="demo_output", help="folder for the figures")
     _force(demo, "overwrite files in --out")
     demo.add_argument("--samples", dest="n_samples", type=int, default=10_000,
                       help="samples per experiment, at least one period of v3 (default 10000)")
@@ -146,7 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--model", required=True, help="model file (hbjax save_model JSON)")
     simulate.add_argument("--input", required=True, help="CSV file with the input signal")
     simulate.add_argument("--column", default=None,
-                          help="input column (header name or index; default: the first)")
+                          help="input column (header name or index; default: the only column, or the "
+                               "v column of a file with columns v and y, else the first)")
     simulate.add_argument("--out", required=True, help="CSV file to write (columns v, y)")
     simulate.add_argument("--noise-std", type=float, default=0.0, help="std of xi(t) (default 0)")
     _seed(simulate)

@@ -155,7 +155,7 @@ def _estimate(model: Hammerstein, v, y):
     return InitialState(y0, u_best, jnp.sum((y - y_sim) ** 2))
 
 
-def estimate_initial_state(model: Hammerstein, v, y) -> InitialState:
+def estimate_initial_state(model: Hammerstein, v, y=None) -> InitialState:
     """Estimate the initial state (output lags ``y0`` and play state ``u0``) of a
     recording for a given model, as MATLAB's ``'InitialCondition', 'e'``.
 
@@ -173,12 +173,16 @@ def estimate_initial_state(model: Hammerstein, v, y) -> InitialState:
     state), as in :func:`hbjax.simulate` with ``y0``.
 
     **Arguments:** `model` (an :class:`hbjax.Hammerstein`), `v`, `y` (the recording,
-    equal lengths). Jit-compatible.
+    equal lengths; or an :class:`hbjax.Recording` as `v`). Jit-compatible.
 
     **Returns:** an :class:`InitialState` ``(y0, u0, cost)``.
     """
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    # (the recording reader lives with the estimators, which import this module)
+    from .._identify.recordings import as_input_output
+
+    v, y, _ = as_input_output(v, y)
     v = signal(v, "v")
     y = signal(y, "y")
     same_length(v=v, y=y)

@@ -85,6 +85,11 @@ def _check_inputs(model, v, y, holdout, effects, key):
         raise ValueError(
             f"record too short for `holdout`={holdout}: {n} samples give {n_fit} to fit and "
             f"{n_hold} held out; need at least {need_fit} to fit and 50 held out.")
+    if float(jnp.max(v) - jnp.min(v)) == 0.0:
+        raise ValueError(
+            "`v` is constant: a constant input holds the backlash at one value, so the "
+            "recording cannot show the input's effect and a mismatch in it cannot be told "
+            "from noise (check that `v` is the input channel).")
     effects = resolve(effects)
     check_key(key, optional=True)
     return np.asarray(v), np.asarray(y), n_fit, effects

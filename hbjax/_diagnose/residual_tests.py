@@ -178,10 +178,8 @@ def fit_percent(y, y_hat) -> float:
     eps = np.finfo(y.dtype).eps  # the rounding of the data as given (float32 or float64)
     y = np.asarray(check_finite(y, "y"), float)
     y_hat = np.asarray(check_finite(y_hat, "y_hat"), float)
-    # The spread is judged on the peak-to-peak range, exact in floating point: the mean
-    # subtracted from a constant record leaves rounding noise that would divide the error.
     peak = np.max(np.abs(y))
-    if np.ptp(y) <= 4 * eps * peak:
+    if no_spread(y, eps):
         raise ValueError(
             "`y` is constant: the fit percent is undefined for an output with no spread "
             "(it compares the error with the spread of `y`)."
@@ -190,6 +188,15 @@ def fit_percent(y, y_hat) -> float:
     # then neither overflow nor underflow whatever the data's units.
     scale = 2.0 ** -np.frexp(peak)[1]
     return fit_percent_unchecked(y * scale, y_hat * scale)
+
+
+def no_spread(y: np.ndarray, eps: float = np.finfo(float).eps) -> bool:
+    """Whether ``y`` is constant up to rounding (``eps``: that of the data as given), so
+    that a fit percentage relative to its spread is undefined. Judged on the peak-to-peak
+    range, exact in floating point: the mean subtracted from a constant record leaves
+    rounding noise that would divide the error."""
+    y = np.asarray(y)
+    return bool(np.ptp(y) <= 4 * eps * np.max(np.abs(y)))
 
 
 def fit_percent_unchecked(y: np.ndarray, y_hat: np.ndarray) -> float:

@@ -10,7 +10,7 @@ from .._core import display
 from .._core.initial import InitialState, estimate_initial_state, injection
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
-from .._diagnose.residual_tests import fit_percent_unchecked
+from .._diagnose.residual_tests import fit_percent_unchecked, no_spread
 from .._misc import as_float_array, check_magnitude, float_dtype, is_traced, lagged, same_length
 from .recordings import as_input_output
 from .stable import INITIAL_STATES, check_initial_state, start_response  # noqa: F401
@@ -225,6 +225,10 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
                          f"got {len(names)}.")
     v, y, dt = _record(v, y)
     y_np = np.asarray(y)
+    if no_spread(y_np):
+        raise ValueError(
+            "`y` is constant: the fit 100 (1 - ||y - y_hat|| / ||y - mean(y)||) is undefined "
+            "for an output with no spread (compare the RMSE of the models' outputs instead).")
     fits, rmses, y_hats, states = [], [], [], []
     for mdl in models:
         state, kw, free_run = None, {}, None
@@ -239,8 +243,7 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
         else:
             y_hat = predict_ahead(mdl, v, y, horizon, **kw)
         y_hat = np.asarray(y_hat)
-        # unchecked (the records are checked above): a constant `y` still gets its row, as
-        # select_structure's averages over validation records expect
+        # unchecked: the records are checked above; a diverged y_hat gives -inf / nan
         fits.append(fit_percent_unchecked(y_np, y_hat))
         rmses.append(float(np.sqrt(np.mean((y_np - y_hat) ** 2))))
         y_hats.append(y_hat)

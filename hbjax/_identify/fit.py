@@ -31,7 +31,9 @@ from .fit_starts import (
 )
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
-from .recordings import as_recordings, check_criterion, total_samples
+from .recordings import (
+    as_recordings, check_branch_degree, check_criterion, check_input_moves, total_samples,
+)
 from .quality import SIM_FIT_FLOOR
 from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
@@ -323,13 +325,14 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     throw = check_bool(throw, "throw")
     na = positive_int(na, "na", minimum=0)
     nb = positive_int(nb, "nb")
-    m = positive_int(m, "m")
+    m = check_branch_degree(m)
     starts = positive_int(starts, "starts")
     max_steps = positive_int(max_steps, "max_steps")
     check_criterion(criterion)
     check_initial_state(initial_state)
     check_key(key)
     recs = as_recordings(recordings)
+    check_input_moves(recs)
     q = na + nb + 2 * m - 1
     if total_samples(recs) <= 2 * q:
         raise ValueError(
@@ -360,8 +363,9 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         return raise_if_failed(res)
     if throw and res.result != RESULTS.successful:
         raise RefinementError(
-            f"fit: no start succeeded; the best: {res.message}. Try more `starts` or "
-            "`max_steps`, other orders, or criterion='simulation'."
+            f"fit: no start succeeded; the best: {res.message.rstrip('.')}. Try more "
+            "`starts` or `max_steps`, other orders"
+            + (", or criterion='simulation'." if criterion == "prediction" else ".")
         )
     return res
 

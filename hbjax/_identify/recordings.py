@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._misc import (
-    as_float_array, check_values, is_traced, one_device, positive_float,
+    as_float_array, check_values, is_traced, one_device, positive_float, positive_int,
 )
 from .criteria import CRITERIA
 from .._core.model import Hammerstein
@@ -25,6 +25,14 @@ def _is_frame(x) -> bool:
     return type(x).__name__ == "DataFrame" and hasattr(x, "iloc") and hasattr(x, "columns")
 
 
+def _frame_column(x, k: int):
+    """Column ``k`` of a DataFrame: real numbers as float64; anything else (complex, text,
+    objects) as it is, for the array checks downstream to refuse by name rather than a
+    cast to drop an imaginary part or parse text."""
+    col = x.iloc[:, k]
+    return col.to_numpy(np.float64) if getattr(col.dtype, "kind", "O") in "iuf" else col.to_numpy()
+
+
 def recording_arrays(x):
     """``(v, y)`` of one recording given as an :class:`hbjax.Recording` (anything with
     ``.v`` and ``.y``) or a pandas ``DataFrame`` of two columns (input first, output
@@ -36,7 +44,7 @@ def recording_arrays(x):
                 f"{list(x.columns)}: select them, e.g. df[['u', 'y']], or use "
                 "hbjax.Recording.from_dataframe."
             )
-        return x.iloc[:, 0].to_numpy(np.float64), x.iloc[:, 1].to_numpy(np.float64)
+        return _frame_column(x, 0), _frame_column(x, 1)
     if hasattr(x, "v") and hasattr(x, "y") and not isinstance(x, (tuple, list)):
         return x.v, x.y
     return None
@@ -47,6 +55,9 @@ def as_input_output(v, y=None):
     :class:`hbjax.Recording` or a two-column DataFrame) given as `v` with `y` omitted;
     ``dt`` is the recording's sampling period (``None`` when unknown)."""
     if y is not None:
+        if not isinstance(v, (np.ndarray, jax.Array)) and recording_arrays(v) is not None:
+            raise TypeError("`v` is a recording, which holds its own output: pass it alone "
+                            "(leave out `y`), or pass the input and output arrays.")
         return v, y, None
     pair = recording_arrays(v)
     if pair is None:
@@ -102,6 +113,32 @@ def as_recordings(recordings, name: str = "recordings", *, model=None, host: boo
 
 def total_samples(recordings) -> int:
     return sum(int(v.shape[0]) for v, _ in recordings)
+
+
+def check_input_moves(recordings, name: str = "recordings") -> None:
+    """Refuse records whose input never changes (every one of them): a backlash driven by
+    a constant input holds its output, so no model of the input's effect can be fitted;
+    only the output's own dynamics are left. Traced records are not checked."""
+    if any(is_traced(v) for v, _ in recordings):
+        return
+    if all(v.shape[0] > 0 and float(jnp.max(v) - jnp.min(v)) == 0.0 for v, _ in recordings):
+        raise ValueError(
+            f"the input `v` of `{name}` is constant in every record: a constant input drives "
+            "the backlash to one value and holds it there, so the records cannot show the "
+            "input's effect. Identify from a record whose input moves (steps, a multisine, "
+            "random levels).")
+
+
+def check_branch_degree(m) -> int:
+    """``m`` for an identification: at least 2, since ``m = 1`` makes both branches
+    constants, whose play operator output never follows the input."""
+    m = positive_int(m, "m")
+    if m < 2:
+        raise ValueError(
+            f"`m` must be an integer >= 2 to identify a model, got {m}: with m = 1 both "
+            "branches are constants, the backlash output never follows the input and the "
+            "input has no effect on the output.")
+    return m
 
 
 def check_criterion(criterion) -> str:

@@ -29,9 +29,12 @@ class ResidualAnalysis(eqx.Module):
     - `independence`, `p_independence`: ``N r^T R_v^+ r`` for the cross-correlations ``r``
       (``R_v``: the input's autocorrelation matrix, which correlates them for a coloured
       input) and its chi-square p-value (degrees of freedom: rank of ``R_v``).
+    - `mean`, `p_mean`: the residuals' mean and the two-sided p-value of its z-score
+      ``mean / (std / sqrt(N))`` (a bias: the correlations above are of the de-meaned
+      residuals and cannot see one).
     - `skip`, `lags`.
 
-    ``passed`` is true when neither p-value is below 0.01.
+    ``passed`` is true when none of the three p-values is below 0.01.
     """
 
     residuals: np.ndarray
@@ -42,13 +45,16 @@ class ResidualAnalysis(eqx.Module):
     p_whiteness: float
     independence: float
     p_independence: float
+    mean: float
+    p_mean: float
     lags: int = eqx.field(static=True)
     skip: int = eqx.field(static=True)
     dt: float | None = eqx.field(static=True)
 
     @property
     def passed(self) -> bool:
-        return bool(self.p_whiteness >= 0.01 and self.p_independence >= 0.01)
+        return bool(self.p_whiteness >= 0.01 and self.p_independence >= 0.01
+                    and self.p_mean >= 0.01)
 
     def summary(self) -> str:
         out_a = int(np.sum(np.abs(self.autocorrelation) > self.band))
@@ -61,15 +67,22 @@ class ResidualAnalysis(eqx.Module):
             f"Ljung-Box Q = {self.ljung_box:.2f}, p = {self.p_whiteness:.3g}"),
             (f"  independence : {out_x}/{self.lags + 1} cross-correlations with past inputs "
             f"outside the band, statistic {self.independence:.2f}, p = {self.p_independence:.3g}"),
+            (f"  mean         : {self.mean:.4g} "
+             f"({self._mean_z():+.2f} standard errors), p = {self.p_mean:.3g}"),
             f"  {verdict}",
         ]))
+
+    def _mean_z(self) -> float:
+        sd = float(np.std(self.residuals))
+        return self.mean / (sd / math.sqrt(self.residuals.shape[0])) if sd > 0 else 0.0
 
     def _repr_html_(self) -> str:
         return self.summary()._repr_html_()
 
     def __repr__(self):
         return (f"ResidualAnalysis(p_whiteness={self.p_whiteness:.3g}, "
-                f"p_independence={self.p_independence:.3g}, passed={self.passed})")
+                f"p_independence={self.p_independence:.3g}, p_mean={self.p_mean:.3g}, "
+                f"passed={self.passed})")
 
 
 def _independence(r, v, lags):
@@ -92,7 +105,8 @@ def resid(model: AbstractModel, v, y=None, *, lags: int = 25) -> ResidualAnalysi
     dropped (they depend on the record's unknown past). Reported: autocorrelations at lags
     ``1..lags`` and cross-correlations with ``v(t-k)``, ``k = 0..lags``, each with the 99%
     band ``2.576 / sqrt(N)``; the Ljung-Box test of whiteness and a chi-square test of
-    independence that accounts for a coloured input. For a model fitted on the same data the
+    independence that accounts for a coloured input (both on the de-meaned residuals); and
+    a test of the residuals' mean, which a bias (an offset the model lacks) moves off 0. For a model fitted on the same data the
     fitted parameters absorb a few degrees of freedom, so both tests are then slightly
     conservative; the calibration is exact for a model not fitted on the record.
 
@@ -115,5 +129,10 @@ def resid(model: AbstractModel, v, y=None, *, lags: int = 25) -> ResidualAnalysi
     q = float(n * (n + 2) * np.sum(r_e**2 / (n - np.arange(1, lags + 1))))
     r_x = correlation(e, v_np, lags)
     stat, dof = _independence(r_x, v_np, lags)
+    mean, sd = float(np.mean(e)), float(np.std(e))
+    # two-sided normal tail of the mean's z-score (white residuals: the tests above)
+    p_mean = math.erfc(abs(mean) / (sd / math.sqrt(n)) / math.sqrt(2.0)) if sd > 0 else (
+        1.0 if mean == 0.0 else 0.0)
     return ResidualAnalysis(e, r_e, r_x, Z99 / math.sqrt(n), q, float(chi2_sf(q, lags)), stat,
-                            float(chi2_sf(stat, dof)) if dof else 1.0, lags, skip, dt)
+                            float(chi2_sf(stat, dof)) if dof else 1.0, mean, p_mean, lags,
+                            skip, dt)

@@ -14,8 +14,9 @@ from .._core.progress import check_progress, progress_bar
 from .._core.simulate import predict, simulate
 from .._misc import positive_int
 from .compare import compare
+from .._diagnose.residual_tests import no_spread
 from .fit import fit
-from .recordings import as_recordings, check_criterion
+from .recordings import as_recordings, check_branch_degree, check_criterion, check_input_moves
 
 RANKINGS = ("bic", "aic", "validation")
 
@@ -163,8 +164,14 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     na_list = _orders(na, "na", 0)
     nb_list = _orders(nb, "nb", 1)
     m_list = _orders(m, "m", 1)
+    check_branch_degree(m_list[0])  # the smallest
     recs = as_recordings(recordings, "recordings")
+    check_input_moves(recs)
     val = None if validation is None else as_recordings(validation, "validation")
+    for k, (_, y_val) in enumerate(val or ()):
+        if no_spread(np.asarray(y_val)):
+            raise ValueError(f"`validation` record {k} has a constant output `y`: its fit "
+                             "percentage is undefined.")
     rank_by = "bic" if rank_by is None else rank_by
     if rank_by not in RANKINGS:
         raise ValueError(f"`rank_by` must be one of {RANKINGS}, got {rank_by!r}.")

@@ -8,9 +8,12 @@ Plain NumPy; pandas and matplotlib are imported only by the functions that need 
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 
 import numpy as np
+
+from .csvtable import distinct_columns
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,6 +232,16 @@ def _column(df, key, role):
     return key
 
 
+def _real_column(df, col, role) -> np.ndarray:
+    """A column as float64, refused unless it holds real numbers (integers or floats):
+    a complex column would lose its imaginary part, a text column would be parsed."""
+    dtype = df[col].dtype
+    if getattr(dtype, "kind", "O") not in "iuf":
+        raise TypeError(f"the {role} column {col!r} must hold real numbers, got dtype "
+                        f"{dtype}.")
+    return df[col].to_numpy(np.float64)
+
+
 def _index_times(index):
     """Sample times in seconds from a frame's index, or None for a plain 0..N-1 index."""
     pd = _pandas()
@@ -267,6 +280,7 @@ def from_dataframe(cls, df, *, input, output, channels=None, dt=None, time=None,
         raise TypeError(f"`df` must be a pandas DataFrame, got {type(df).__name__}.")
     cin, cout = _column(df, input, "input"), _column(df, output, "output")
     ctime = None if time is None else _column(df, time, "time")
+    distinct_columns("`df`", {"input": cin, "output": cout, "time": ctime})
     if channels is None:
         used = {cin, cout, ctime}
         channels = {str(c): c for c in df.columns
@@ -274,19 +288,26 @@ def from_dataframe(cls, df, *, input, output, channels=None, dt=None, time=None,
                     and not pd.api.types.is_bool_dtype(df[c])}
     elif not hasattr(channels, "items"):
         channels = {str(c): c for c in channels}
-    cols = {n: df[_column(df, c, "channel")].to_numpy(np.float64) for n, c in channels.items()}
+    cols = {n: _real_column(df, _column(df, c, "channel"), "channel")
+            for n, c in channels.items()}
     t0 = 0.0
-    t = df[ctime].to_numpy(np.float64) if ctime is not None else _index_times(df.index)
+    t = _real_column(df, ctime, "time") if ctime is not None else _index_times(df.index)
     if t is not None and len(t) >= 2:
         t0 = float(t[0])
         if dt is None:
             dt = uniform_step(t, f"the {'time column' if ctime is not None else 'index'}")
+            # A frame of to_dataframe carries its recording's exact period: the index's
+            # steps, differences of rounded times, are that period only up to rounding.
+            kept = df.attrs.get("dt") if ctime is None else None
+            if isinstance(kept, float) and math.isfinite(kept) and kept > 0 \
+                    and abs(kept - dt) <= 1e-9 * kept:
+                dt = kept
         elif ctime is not None:  # (a given dt does replace an index's spacing)
             dt = check_dt_agrees(dt, (t[-1] - t[0]) / (len(t) - 1),
                                  f"the step of the time column {time!r}",
                                  "give only one of them: leave out `dt` to use the times, "
                                  "or `time` to use `dt`")
-    return cls(v=df[cin].to_numpy(np.float64), y=df[cout].to_numpy(np.float64), dt=dt,
+    return cls(v=_real_column(df, cin, "input"), y=_real_column(df, cout, "output"), dt=dt,
                source="DataFrame", name=str(name), channels=cols, t0=t0)
 
 
@@ -297,4 +318,7 @@ def to_dataframe(rec):
     data = {"v": rec.v, "y": rec.y, **dict(rec.channels)}
     name = "t" if rec.dt is not None else "sample"
     index = pd.Index(rec.t if rec.dt is not None else rec.t.astype(np.int64), name=name)
-    return pd.DataFrame(data, index=index)
+    frame = pd.DataFrame(data, index=index)
+    if rec.dt is not None:  # for from_dataframe: the exact period, not the index's steps
+        frame.attrs["dt"] = float(rec.dt)
+    return frame

@@ -58,6 +58,9 @@ def _decode_array(obj, where):
     if set(obj) - {"array", "dtype", "shape", "kind"} or not {"array", "dtype", "shape"} <= set(obj):
         raise ModelFileError(f"`{where}` is a malformed array entry (keys {sorted(obj)}).")
     dtype, shape, data = obj["dtype"], obj["shape"], obj["array"]
+    kind = obj.get("kind", "jax")
+    if kind not in ("jax", "numpy"):
+        raise ModelFileError(f"`{where}.kind` must be 'jax' or 'numpy', got {kind!r}.")
     if dtype not in _DTYPES:
         raise ModelFileError(f"`{where}` has unsupported dtype {dtype!r}.")
     if not (isinstance(shape, list) and all(isinstance(s, int) and not isinstance(s, bool)
@@ -79,8 +82,18 @@ def _decode_array(obj, where):
             raise ModelFileError(f"`{where}` must hold integers.")
         values = data
     arr = np.array(values, dtype=dtype).reshape(shape)
-    if obj.get("kind", "jax") == "numpy":
+    if kind == "numpy":
         return arr
+    if arr.dtype.itemsize == 8 and not jax.config.jax_enable_x64:
+        # JAX would store these in 32 bits: refuse a silent rounding (or overflow)
+        narrow = arr.astype(np.float32 if arr.dtype.kind == "f" else np.int32)
+        with np.errstate(invalid="ignore", over="ignore"):
+            exact = np.array_equal(narrow.astype(arr.dtype), arr, equal_nan=arr.dtype.kind == "f")
+        if not exact:
+            raise ModelFileError(
+                f"`{where}` holds {dtype} values that 32 bits cannot represent exactly, and "
+                "JAX's 64-bit mode is off, so loading would change them. Turn it on before "
+                "loading: jax.config.update('jax_enable_x64', True).")
     return jnp.asarray(arr)
 
 
@@ -173,7 +186,8 @@ def _check_arrays(module, cls, where):
                 and c1.shape == c2.shape and c1.shape[0] >= 1 and c1.dtype == c2.dtype
                 and c1.dtype in _FLOATS):
             raise ModelFileError(
-                f"`{where}` (Backlash) needs c1, c2 float64 or float32 1-D of equal length >= 1.")
+                f"`{where}` (Backlash) needs c1, c2 as JAX arrays (kind 'jax') of float64 or "
+                "float32, 1-D, of equal length >= 1.")
         if not (np.all(np.isfinite(c1)) and np.all(np.isfinite(c2))):
             raise ModelFileError(f"`{where}` (Backlash) has non-finite coefficients.")
     if isinstance(module, ARX):
@@ -181,6 +195,7 @@ def _check_arrays(module, cls, where):
         if not (isinstance(a, jax.Array) and isinstance(b, jax.Array) and a.ndim == 1
                 and b.ndim == 1 and b.shape[0] >= 1 and a.dtype == b.dtype
                 and a.dtype in _FLOATS):
-            raise ModelFileError(f"`{where}` (ARX) needs a, b float64 or float32 1-D with nb >= 1.")
+            raise ModelFileError(f"`{where}` (ARX) needs a, b as JAX arrays (kind 'jax') of "
+                                 "float64 or float32, 1-D, with nb >= 1.")
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
             raise ModelFileError(f"`{where}` (ARX) has non-finite coefficients.")

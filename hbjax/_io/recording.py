@@ -86,6 +86,11 @@ class Recording:
         """The samples ``start:stop`` (Python's slice rules) as a new record (same ``dt``,
         ``source`` and ``name``; channels sliced alike, times kept). A slice that keeps no
         sample is refused."""
+        for name, bound in (("start", start), ("stop", stop)):
+            if bound is not None and (isinstance(bound, bool)
+                                      or not isinstance(bound, (int, np.integer))):
+                raise TypeError(f"`{name}` must be an integer sample index or None, got "
+                                f"{bound!r}.")
         index = slice(start, stop)
         if len(range(*index.indices(len(self)))) == 0:
             raise ValueError(f"`start`={start!r}, `stop`={stop!r} keep no sample of a "
