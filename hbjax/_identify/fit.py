@@ -31,9 +31,7 @@ from .fit_starts import (
 )
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
-from .recordings import (
-    as_recordings, check_branch_degree, check_criterion, check_input_moves, total_samples,
-)
+from .recordings import as_recordings, check_branch_degree, check_criterion, total_samples
 from .quality import SIM_FIT_FLOOR
 from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
@@ -332,7 +330,6 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     check_initial_state(initial_state)
     check_key(key)
     recs = as_recordings(recordings)
-    check_input_moves(recs)
     q = na + nb + 2 * m - 1
     if total_samples(recs) <= 2 * q:
         raise ValueError(

@@ -115,20 +115,6 @@ def total_samples(recordings) -> int:
     return sum(int(v.shape[0]) for v, _ in recordings)
 
 
-def check_input_moves(recordings, name: str = "recordings") -> None:
-    """Refuse records whose input never changes (every one of them): a backlash driven by
-    a constant input holds its output, so no model of the input's effect can be fitted;
-    only the output's own dynamics are left. Traced records are not checked."""
-    if any(is_traced(v) for v, _ in recordings):
-        return
-    if all(v.shape[0] > 0 and float(jnp.max(v) - jnp.min(v)) == 0.0 for v, _ in recordings):
-        raise ValueError(
-            f"the input `v` of `{name}` is constant in every record: a constant input drives "
-            "the backlash to one value and holds it there, so the records cannot show the "
-            "input's effect. Identify from a record whose input moves (steps, a multisine, "
-            "random levels).")
-
-
 def check_branch_degree(m) -> int:
     """``m`` for an identification: at least 2, since ``m = 1`` makes both branches
     constants, whose play operator output never follows the input."""

@@ -16,7 +16,7 @@ from .._misc import positive_int
 from .compare import compare
 from .._diagnose.residual_tests import no_spread
 from .fit import fit
-from .recordings import as_recordings, check_branch_degree, check_criterion, check_input_moves
+from .recordings import as_recordings, check_branch_degree, check_criterion
 
 RANKINGS = ("bic", "aic", "validation")
 
@@ -166,7 +166,6 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     m_list = _orders(m, "m", 1)
     check_branch_degree(m_list[0])  # the smallest
     recs = as_recordings(recordings, "recordings")
-    check_input_moves(recs)
     val = None if validation is None else as_recordings(validation, "validation")
     for k, (_, y_val) in enumerate(val or ()):
         if no_spread(np.asarray(y_val)):
