@@ -71,6 +71,42 @@ def place_by_free_run(findings, criterion, v, y, n_fit):
     return out
 
 
+def order_by_held_out(findings, v, y, n_fit):
+    """The mechanisms of ``findings`` (ranked by :func:`rank`, mechanisms first) with each
+    moved ahead of the one just before it while it simulates the held-out part
+    significantly better (Diebold-Mariano z > DM_Z on the held-out free-run errors): the
+    evidence every mechanism is reported on also orders them. BIC on the fitting segment
+    alone ranked a two-parameter effect on the held nominal base (a curved branch) ahead
+    of the refit on a record of mismatched parameters, where the refit simulated the
+    held-out part better at z = 4.4. A finding whose recording shows its own signature
+    (``evidence["record_signature"]``) is not overtaken by the rivals its class names
+    (``signature_rivals``: effects that can mimic its residual but not that signature)."""
+    from .._core.simulate import simulate
+
+    out = list(findings)
+    errors = {}
+
+    def held_out_error(g):
+        if id(g) not in errors:
+            errors[id(g)] = (y - np.asarray(simulate(g.model, v)))[n_fit:]
+        return errors[id(g)]
+
+    for k in range(1, sum(f.mechanism for f in out)):
+        i = k
+        while i > 0:
+            ahead, f = out[i - 1], out[i]
+            if (ahead.evidence.get("record_signature")
+                    and f.effect in getattr(type(ahead.model), "signature_rivals", ())):
+                break
+            r_ahead, r_f = held_out_error(ahead), held_out_error(f)
+            if not (np.all(np.isfinite(r_ahead)) and np.all(np.isfinite(r_f))
+                    and rt.diebold_mariano(r_ahead, r_f) > DM_Z):
+                break
+            out[i - 1], out[i] = f, ahead
+            i -= 1
+    return out
+
+
 def statistics(y, fast_all, eps_all, ysim_all, n_fit, burn, lay, candidates, theta_fit):
     """BIC on the fitting segment (the criterion that was minimised) and held-out fits
     (exact simulator and predictor)."""

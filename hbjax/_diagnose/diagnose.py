@@ -47,7 +47,8 @@ from . import effects as fx
 from . import holdout as ho
 from . import verdict as vd
 from .clip_nominal import ON_NOMINAL, clip_on_nominal
-from .decide import BIC_MARGIN, DM_Z, decide, place_by_free_run, rank, statistics
+from .decide import (BIC_MARGIN, DM_Z, decide, order_by_held_out, place_by_free_run, rank,
+                     statistics)
 from .effects import base_theta, resolve
 from .fitting import choose_starts, evaluate_candidates, fit_candidates
 from .input_clip_nominal import ON_NOMINAL as INPUT_CLIP_ON_NOMINAL
@@ -192,7 +193,7 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
     tests = residual_signatures(v_fit, y_fit, ysim_nom[:n_fit], eps_nom[:n_fit], u_nom[:n_fit], burn)
     tests["change_scan"] = change_scan(J, e_j, burn)
     ctx = cands.Context(lay, theta_nom, consts, v_fit, y_fit, ysim_nom[:n_fit], u_nom[:n_fit],
-                        eps_nom[:n_fit], burn, tests["change_scan"])
+                        eps_nom[:n_fit], burn, tests["change_scan"], v_record=v)
 
     bar.update(1)
     # 2. Candidates: choose each start by a batched criterion evaluation, then fit all.
@@ -260,7 +261,8 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
             table[CASCADE] = row
         if finding is not None:
             findings = findings + [finding]
-    findings = place_by_free_run(rank(findings), criterion, v, y, n_fit)
+    findings = order_by_held_out(place_by_free_run(rank(findings), criterion, v, y, n_fit),
+                                 v, y, n_fit)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
     bar.update(1)

@@ -57,6 +57,9 @@ class Context:
     eps_nom: np.ndarray
     burn: int
     change_scan: dict
+    #: the whole record's input (fitting and held-out parts): the inputs a refitted branch
+    #: must hold at (:func:`hbjax._diagnose.candidates.branch_directions`)
+    v_record: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -82,6 +85,9 @@ class Candidate:
     params: np.ndarray | None = None
     scales: np.ndarray | None = None
     anchored: bool = False
+    #: the fitted directions of the branch slots (``{"c1": D, ...}``, ``D`` of shape
+    #: ``(m, r)``; a slot not named is fitted in full): ``candidates.branch_directions``
+    directions: dict | None = None
 
     @property
     def effect(self) -> str:

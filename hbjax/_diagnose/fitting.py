@@ -98,7 +98,7 @@ def fit_candidates(ctx: Context, candidates, theta0, ints, v, y, criterion, max_
     for i, c in enumerate(candidates):
         if kernel[i]:
             continue
-        S = cands.base_selection(lay, theta0[i], lay.p_base) * (not c.anchored)
+        S = cands.base_selection(lay, theta0[i], lay.p_base, c.directions) * (not c.anchored)
         th, params, st, cv = fit_terms(
             c.cls, lay, jnp.asarray(theta0[i]), jnp.asarray(S), jnp.asarray(c.params),
             jnp.asarray(c.scales), consts, v, y, burn, max_steps, criterion)
