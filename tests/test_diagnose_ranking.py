@@ -75,3 +75,33 @@ def test_clip_signature_appears_only_in_clipped_outputs():
     others = {e: found[e] for e in total if e != "output_saturation"}
     assert sum(others.values()) == 0, others
     assert found["output_saturation"] >= 1, found
+
+
+def test_a_mechanism_that_simulates_the_held_out_part_significantly_better_moves_ahead():
+    # Random inputs and noise draws: the record is simulated by one model; a finding
+    # carrying another model (its linear block's gain 20 % off) ranks first by BIC. The
+    # held-out free run puts the record's own model first; with the wrong one carrying
+    # the recorded signature of a clip that names the other as a rival, it stays; between
+    # two findings of the same model nothing moves.
+    from hbjax._diagnose.decide import order_by_held_out
+
+    base = hbjax.default_system()
+    off = hbjax.Hammerstein(base.backlash, hbjax.ARX(base.arx.a, 0.8 * base.arx.b))
+    clip = hbjax.EFFECTS["output_saturation"](off, None, jnp.asarray(1e9))
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        v = np.repeat(rng.uniform(-4, 4, 40), 50)
+        y = np.asarray(hbjax.simulate(base, v)) + 0.05 * rng.standard_normal(v.size)
+        n_fit = 1400
+        wrong, right = _finding("branch_degree", off, 10.0), _finding("parameter_mismatch",
+                                                                       base, 20.0)
+        noise = _finding("colored_noise", hbjax.EFFECTS["colored_noise"], 0.0,
+                         kind="noise model")
+        got = order_by_held_out([wrong, right, noise], v, y, n_fit)
+        assert [f.effect for f in got] == ["parameter_mismatch", "branch_degree",
+                                           "colored_noise"], seed
+        signed = _finding("output_saturation", clip, 10.0, signature=True)
+        rival = _finding("input_saturation", base, 20.0)
+        assert order_by_held_out([signed, rival], v, y, n_fit) == [signed, rival]
+        twin = _finding("offset_drift", base, 30.0)
+        assert order_by_held_out([right, twin], v, y, n_fit) == [right, twin]
