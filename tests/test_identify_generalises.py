@@ -141,6 +141,15 @@ def test_unidentified_parameters_get_infinite_std():
         res.free_run_std(np.ones((3, 3)))
 
 
+def test_a_failed_fit_on_a_constant_input_says_so():
+    # the generic advice (slow poles, more starts) does not apply where nothing moved
+    rng = np.random.default_rng(4)
+    v, y = np.full(500, 1.5), rng.standard_normal(500)
+    with pytest.raises(hbjax.RefinementError, match="input `v` is constant in every record"):
+        hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.PRNGKey(0), starts=4,
+                  progress=False)
+
+
 def test_fit_carries_the_free_run_fit_of_every_record():
     rng = np.random.default_rng(3)
     records = []

@@ -359,6 +359,14 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     if throw and res.result != RESULTS.successful:
+        if all(float(np.ptp(np.asarray(v))) == 0.0 for v, _ in recs):
+            # the generic advice (slow poles, other starts) does not apply: nothing moved
+            raise RefinementError(
+                f"fit: no start succeeded; the best: {res.message.rstrip('.')}. Here the "
+                "input `v` is constant in every record, so the records cannot show an effect "
+                "of it (the branches are not identified: see .unidentified with "
+                "throw=False); record an input that moves."
+            )
         raise RefinementError(
             f"fit: no start succeeded; the best: {res.message.rstrip('.')}. Try more "
             "`starts` or `max_steps`, other orders"
