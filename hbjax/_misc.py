@@ -302,3 +302,10 @@ def chi2_sf(x, dof):
     dof = jnp.maximum(jnp.asarray(dof, x.dtype), 1.0)
     p = jnp.where(x > 0, gammaincc(dof / 2.0, jnp.maximum(x, 0.0) / 2.0), 1.0)
     return jnp.where(jnp.isnan(x), jnp.nan, p)
+
+
+def holds_real_numbers(dtype) -> bool:
+    """Whether a column's ``dtype`` holds real numbers (integers or floats): the one test
+    behind every DataFrame column read as float64, so that a complex column never loses
+    its imaginary part and a text column is never parsed."""
+    return getattr(dtype, "kind", "O") in "iuf"

@@ -5,7 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._misc import (
-    as_float_array, check_values, is_traced, one_device, positive_float, positive_int,
+    as_float_array, check_values, holds_real_numbers, is_traced, one_device, positive_float,
+    positive_int,
 )
 from .criteria import CRITERIA
 from .._core.model import Hammerstein
@@ -30,7 +31,7 @@ def _frame_column(x, k: int):
     objects) as it is, for the array checks downstream to refuse by name rather than a
     cast to drop an imaginary part or parse text."""
     col = x.iloc[:, k]
-    return col.to_numpy(np.float64) if getattr(col.dtype, "kind", "O") in "iuf" else col.to_numpy()
+    return col.to_numpy(np.float64) if holds_real_numbers(col.dtype) else col.to_numpy()
 
 
 def recording_arrays(x):

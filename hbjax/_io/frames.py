@@ -13,6 +13,7 @@ import types
 
 import numpy as np
 
+from .._misc import holds_real_numbers
 from .csvtable import distinct_columns
 
 
@@ -236,7 +237,7 @@ def _real_column(df, col, role) -> np.ndarray:
     """A column as float64, refused unless it holds real numbers (integers or floats):
     a complex column would lose its imaginary part, a text column would be parsed."""
     dtype = df[col].dtype
-    if getattr(dtype, "kind", "O") not in "iuf":
+    if not holds_real_numbers(dtype):
         raise TypeError(f"the {role} column {col!r} must hold real numbers, got dtype "
                         f"{dtype}.")
     return df[col].to_numpy(np.float64)
