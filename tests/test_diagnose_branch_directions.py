@@ -50,7 +50,7 @@ def test_a_branch_seen_on_one_side_is_fitted_only_in_the_directions_seen():
     # samples by at least SEEN_FRACTION of its mean square over the record's inputs, and
     # every change outside their span by less
     for seed in range(6):
-        base, v, y = _case(seed)
+        base, v, _ = _case(seed)
         model = hammerstein(base)
         lay, theta = base_theta(model)
         u = play(v, base["c1"], base["c2"])
@@ -62,7 +62,7 @@ def test_a_branch_seen_on_one_side_is_fitted_only_in_the_directions_seen():
                             rtol=0, atol=1e-9 * np.ptp(u))
             seen = np.vander(v[:N_FIT][on], 3, increasing=True)
 
-            def ratio(delta):
+            def ratio(delta, seen=seen):
                 return (np.mean((seen @ delta) ** 2) if len(seen) else 0.0) / np.mean(
                     (all_powers @ delta) ** 2)
 
