@@ -82,7 +82,9 @@ def branch_directions(lay: Layout, theta, v_fit, u_fit, v_all, start: int = 0) -
     (V delta)^2)`` (``V`` the powers of eq. (1)) whose ratio is at least
     :data:`SEEN_FRACTION`; the others stay at the nominal values, and the information
     criterion counts only the fitted directions. ``u_fit`` is the nominal model's play
-    output on the fitting segment, which tells where each branch is active."""
+    output on the fitting segment, which tells where each branch is active. A record of
+    fewer input levels than coefficients cannot tell the directions apart (its own mean
+    square is singular): there every direction is fitted."""
     from scipy.linalg import eigh  # (imported where used, as scipy elsewhere here)
 
     _, _, c1, c2 = (np.asarray(x) for x in lay.base(np.asarray(theta)))
@@ -90,7 +92,9 @@ def branch_directions(lay: Layout, theta, v_fit, u_fit, v_all, start: int = 0) -
     powers = np.vander(np.asarray(v_all, float), lay.m, increasing=True)
     gram_all = powers.T @ powers / len(powers)
     if np.linalg.matrix_rank(gram_all) < lay.m:
-        return {"c1": None, "c2": None}  # too few distinct inputs to tell directions apart
+        # too few input levels to tell the directions apart (a PRBS-like record of two
+        # levels and m = 3): every direction is fitted, as the branches' only record
+        return {"c1": None, "c2": None}
     out = {}
     tol = 1e-9 * (float(np.ptp(u_fit)) + float(np.max(np.abs(u_fit), initial=0.0)) + 1e-300)
     for name, c in (("c1", c1), ("c2", c2)):
@@ -98,7 +102,10 @@ def branch_directions(lay: Layout, theta, v_fit, u_fit, v_all, start: int = 0) -
         on = np.abs(local @ c - u_fit) <= tol
         seen = local[on]
         gram = seen.T @ seen / max(len(seen), 1)
-        ratio, vecs = eigh(gram, gram_all)
+        try:
+            ratio, vecs = eigh(gram, gram_all)
+        except np.linalg.LinAlgError:  # singular in rounding only (two levels, m = 3)
+            return {"c1": None, "c2": None}
         keep = ratio >= SEEN_FRACTION
         if keep.all():
             out[name] = None
