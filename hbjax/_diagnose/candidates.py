@@ -36,15 +36,19 @@ def build(ctx: Context, effects) -> list[Candidate]:
     free = [cls.candidate(ctx) for cls in effects]
     out = free + [anchored(c, ctx) for c in free if c.cls.anchorable]
     if ctx.v_record is not None:
-        seen = branch_directions(ctx.lay, ctx.theta_nom, ctx.v_fit, ctx.u_nom, ctx.v_record,
-                                 start=ctx.burn)
+        seen = {}  # by the first sample a branch term acts from
+
+        def directions(start):
+            if start not in seen:
+                seen[start] = branch_directions(ctx.lay, ctx.theta_nom, ctx.v_fit, ctx.u_nom,
+                                                ctx.v_record, start=start)
+            return seen[start]
+
         for c in out:  # (an anchored candidate frees no base slot: only its own apply)
-            c.directions = dict(seen)
+            c.directions = dict(directions(ctx.burn))
             if any(name in ("dc1", "dc2") for name, _ in c.free):
                 # a change's branch terms act from its start time on (the first start's)
-                time = int(np.asarray(c.starts[0][1])[1])
-                after = branch_directions(ctx.lay, ctx.theta_nom, ctx.v_fit, ctx.u_nom,
-                                          ctx.v_record, start=max(ctx.burn, time))
+                after = directions(max(ctx.burn, int(np.asarray(c.starts[0][1])[1])))
                 c.directions.update(dc1=after["c1"], dc2=after["c2"])
     return out
 
@@ -97,8 +101,8 @@ def branch_directions(lay: Layout, theta, v_fit, u_fit, v_all, start: int = 0) -
         return {"c1": None, "c2": None}
     out = {}
     tol = 1e-9 * (float(np.ptp(u_fit)) + float(np.max(np.abs(u_fit), initial=0.0)) + 1e-300)
+    local = np.vander(v_fit, lay.m, increasing=True)
     for name, c in (("c1", c1), ("c2", c2)):
-        local = np.vander(v_fit, lay.m, increasing=True)
         on = np.abs(local @ c - u_fit) <= tol
         seen = local[on]
         gram = seen.T @ seen / max(len(seen), 1)
