@@ -239,14 +239,14 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
                                  channels, n_fit, burn, criterion, table)
         if finding is not None:
             findings = findings + [finding]
-    if fx.InputSaturation in effects and not findings:
-        # an actuator limit every held-out sample stays inside: validated by folds
+    if fx.InputSaturation in effects and not any(f.mechanism for f in findings):
+        # an actuator limit the held-out part alone cannot confirm: validated by folds
         row, finding = input_clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all,
                                              stats, [c.label for c in candidates], criterion)
         if row is not None:
             table[INPUT_CLIP_ON_NOMINAL] = row
         if finding is not None:
-            findings = [finding]
+            findings = findings + [finding]
     if fx.LevelDependentDynamics in effects:
         # a level fed through a second, unmeasured one: the level law of a cascade of
         # tanks, which the single-level law cannot express; an output-error model of a

@@ -1,10 +1,13 @@
 """The actuator limit (a clip of the internal signal ``u``) fitted on top of the nominal
-model, validated over folds of the whole record where the held-out part never reaches it.
+model, validated over folds of the whole record where the held-out part cannot confirm it.
 
 A filtered-noise input reaches its extremes in a few bursts; the split balances the
 input's spread, not its extremes, so all of them can fall in the fitting part. The clip
 then gains thousands in BIC there, while nothing held out can confirm it, and a diagnosis
-that reports a mechanism only on held-out evidence names nothing. With the base held, the
+that reports a mechanism only on held-out evidence names nothing. A limit acting on a few
+percent of the samples at about one noise standard deviation is also below the power of
+the held-out 30 % alone (z 1.2-1.8 where the fitting segment gained 1000-4700 in BIC);
+the folds test it on every sample of the record. With the base held, the
 clip's effect on the free run is linear in the clipped excess,
 ``y = y_nom + (B / A) (clip(u, lower, upper) - u)`` (eq. (10) driven by the clipped
 signal), so its levels are fitted exactly and cheaply, fold by fold, with no compiled
@@ -23,6 +26,7 @@ from . import effects as fx
 from . import residual_tests as rt
 from .clip_nominal import MIN_CHANGED, N_FOLDS, _best_level, _significant
 from .decide import BIC_MARGIN, DM_Z, over_constant
+from .effect_base import ANCHORED
 from .kernel import MAX_DELAY
 from .result import Finding
 
@@ -65,17 +69,16 @@ def input_clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
                           criterion):
     """The actuator limit fitted on the nominal model (base held) and cross-validated over
     ``N_FOLDS`` contiguous blocks of the whole record; tried only where the diagnosis found
-    nothing (its levels on the fitting segment cost a few hundredths of a second).
+    no mechanism (its levels on the fitting segment cost a few hundredths of a second).
 
     Decision (all required): BIC gain over the nominal model > BIC_MARGIN on the fitting
-    segment (levels fitted there, on the diagnosis's criterion); the held-out part holds
-    fewer than MIN_CHANGED samples the clip acts on (otherwise the held-out tests of the
-    anchored candidate have decided); in the cross-validation, where each block's free run
-    is clipped at levels fitted on the other blocks (so every clip it applies was
-    predicted from other parts of the record), the clip changes at least MIN_CHANGED
-    samples, lowers their error significantly
-    (Diebold-Mariano z > DM_Z or the event sign test, as for the output clip) and lifts the
-    free-run fit over the record; the refit does not simulate the held-out part
+    segment (levels fitted there, on the diagnosis's criterion), and a BIC there no worse
+    than every other effect's held on the nominal base (the anchored candidates); in the
+    cross-validation, where each block's free run is clipped at levels fitted on the other
+    blocks (so every clip it applies was predicted from other parts of the record), the
+    clip changes at least MIN_CHANGED samples, lowers their error significantly (Diebold-Mariano z > DM_Z
+    or the event sign test, as for the output clip) and lifts the free-run fit over the
+    record; the refit does not simulate the held-out part
     significantly better than the nominal model (Diebold-Mariano z <= DM_Z: a base that
     must move is not explained by an actuator limit alone), and the nominal model
     simulates it significantly better than a constant output. A side of the clip reached
@@ -123,10 +126,18 @@ def input_clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
     row = {"bic": bic_main, "k": k, "dbic_from_burn_in": dbic, "burn_in": b0,
            "held_out_samples_clipped": held_acts,
            "lower": lo if np.isfinite(lo) else None, "upper": hi if np.isfinite(hi) else None}
-    if not (dbic > BIC_MARGIN and held_acts < MIN_CHANGED):
-        row["decision"] = ("BIC gain on the fitting segment not above the margin" if
-                           dbic <= BIC_MARGIN else "the held-out part reaches the clip: "
-                           "decided by the held-out tests of the anchored candidate")
+    if not dbic > BIC_MARGIN:
+        row["decision"] = "BIC gain on the fitting segment not above the margin"
+        return row, None
+    # The effects held on the nominal base compete on the fitting segment's BIC: a limit
+    # that another one explains better there (a compressive sensor, an unmodelled lag)
+    # is that effect's approximant, whatever the folds then say about it.
+    rivals = {name[:-len(ANCHORED)]: float(stats[i + 1]["bic"]) for i, name in enumerate(names)
+              if name.endswith(ANCHORED) and not name.startswith("input_saturation")}
+    leader = min(rivals, key=rivals.get, default=None)
+    if leader is not None and rivals[leader] < bic_main:
+        row["decision"] = (f"{leader} on the nominal base explains the fitting segment "
+                           f"better (BIC lower by {bic_main - rivals[leader]:.1f})")
         return row, None
     validation = _folds(y, y_nom, u, resid, free_run, b0)
     row["folds"] = validation
@@ -192,7 +203,7 @@ def _folds(y, y_nom, u, resid, free_run, b0):
     fit_nom = rt.fit_percent_unchecked(y[b0:], y_nom[b0:])
     fit_cv = rt.fit_percent_unchecked(y[b0:], y_cv[b0:])
     accepted = bool(n_changed >= MIN_CHANGED and _significant(dm, sign) and fit_cv > fit_nom)
-    return {"by": f"{N_FOLDS} folds (the held-out part never reaches the clip)",
+    return {"by": f"{N_FOLDS} folds of the whole record",
             "accepted": accepted, "changed": n_changed, "dm_z": float(dm),
             "event_sign_test": sign, "fit_nominal": float(fit_nom), "fit_clip": float(fit_cv),
             "clipped_samples_per_fold": acting, "fold_levels": fold_levels,
