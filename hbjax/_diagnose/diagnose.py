@@ -218,8 +218,9 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
             failed[c.label] = f"{why} ({int(s_)} solver steps)"
             st["bic"] = np.inf  # never ranked or reported
             st["decision"] = "failed: " + why
+    free_runs = {}  # the kernel's free run of each finding, reused to order them
     findings = decide(ctx, candidates, stats, theta_fit, np.asarray(all_ints), eps_all, ysim_all,
-                       u_all, y, v, n_fit, tests)
+                       u_all, y, v, n_fit, tests, free_runs)
     table = {c.label: {k: stats[i + 1].get(k) for k in
                         ("bic", "k", "sse", "fit_sim", "fit_pred", "lm_steps", "lm_converged",
                          "dbic", "dm_z", "dm_z_simulation", "dm_z_over_constant", "base_p",
@@ -261,8 +262,9 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
             table[CASCADE] = row
         if finding is not None:
             findings = findings + [finding]
-    findings = order_by_held_out(place_by_free_run(rank(findings), criterion, v, y, n_fit),
-                                 v, y, n_fit)
+    findings = order_by_held_out(
+        place_by_free_run(rank(findings), criterion, v, y, n_fit, free_runs),
+        v, y, n_fit, free_runs)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
     bar.update(1)
