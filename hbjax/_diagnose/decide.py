@@ -52,7 +52,7 @@ def held_out_free_run_errors(v, y, n_fit, free_runs=None):
     the kernel) are simulated here, one compilation per model class."""
     from .._core.simulate import simulate
 
-    known = dict(free_runs or {})
+    known = free_runs or {}
     errors = {}
 
     def error(g):

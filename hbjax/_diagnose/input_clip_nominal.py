@@ -76,9 +76,9 @@ def input_clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
     than every other effect's held on the nominal base (the anchored candidates); in the
     cross-validation, where each block's free run is clipped at levels fitted on the other
     blocks (so every clip it applies was predicted from other parts of the record), the
-    clip changes at least MIN_CHANGED samples, lowers their error significantly (Diebold-Mariano z > DM_Z
-    or the event sign test, as for the output clip) and lifts the free-run fit over the
-    record; the refit does not simulate the held-out part
+    clip changes at least MIN_CHANGED samples, lowers their error significantly
+    (Diebold-Mariano z > DM_Z or the event sign test, as for the output clip) and lifts
+    the free-run fit over the record; the refit does not simulate the held-out part
     significantly better than the nominal model (Diebold-Mariano z <= DM_Z: a base that
     must move is not explained by an actuator limit alone), and the nominal model
     simulates it significantly better than a constant output. A side of the clip reached
