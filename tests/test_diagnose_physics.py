@@ -16,7 +16,9 @@ def _system():
                              hbjax.ARX(a=[-0.8], b=[0.2]))
 
 
-def _loop(v, c1, c2, a, b, law):
+def _loop(v, c1, c2, a, b, law, measured=None):
+    """Free run, or with ``measured`` the one-step prediction (the measured output in
+    the lag and in the law)."""
     u, y, s = np.zeros(len(v)), np.zeros(len(v)), 0.0
     for t in range(len(v)):
         s = min(max(s, c1[0] + c1[1] * v[t]), c2[0] + c2[1] * v[t])
@@ -25,8 +27,9 @@ def _loop(v, c1, c2, a, b, law):
     y_prev = 0.0
     for t in range(len(v)):
         y[t] = -a * y_prev + b * w_prev + extra
-        w_prev, extra = law(u[t], y[t])
-        y_prev = y[t]
+        y_t = y[t] if measured is None else measured[t]
+        w_prev, extra = law(u[t], y_t)
+        y_prev = y_t
     return y
 
 
@@ -38,6 +41,20 @@ def test_friction_in_loop_matches_plain_loop():
     ref = _loop(v, [-0.3, 1.0], [0.3, 1.0], -0.8, 0.2,
                 lambda u, y: (u - 0.4 * np.tanh(y / 0.05) - 0.1 * y, 0.0))
     np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, v)), ref, atol=1e-10)
+
+
+def test_friction_in_loop_predicts_as_the_plain_loop():
+    """The one-step prediction (the diagnosis' criterion) puts the measured output in the
+    law; it is computed without a scan, so it is checked on its own."""
+    model = _system()
+    rng = np.random.default_rng(3)
+    v = np.repeat(rng.uniform(-3, 3, 30), 10)
+    y_meas = np.asarray(hbjax.simulate(model, v)) + 0.1 * rng.standard_normal(len(v))
+    fx = hbjax.EFFECTS["coulomb_friction"](model, jnp.asarray(0.4), jnp.asarray(0.1),
+                                          jnp.asarray(0.05))
+    ref = _loop(v, [-0.3, 1.0], [0.3, 1.0], -0.8, 0.2,
+                lambda u, y: (u - 0.4 * np.tanh(y / 0.05) - 0.1 * y, 0.0), measured=y_meas)
+    np.testing.assert_allclose(np.asarray(hbjax.predict(fx, v, y_meas)), ref, atol=1e-10)
 
 
 def test_anchored_unmodeled_dynamics_is_a_lag_in_series():
@@ -66,22 +83,24 @@ def test_anchored_unmodeled_dynamics_is_a_lag_in_series():
                                np.asarray(hbjax.simulate(model, flat))[-1], rtol=1e-9)
 
 
-def _level_loop(a, b, u, alpha, outlet, depth, datum=None):
+def _level_loop(a, b, u, alpha, outlet, depth, datum=None, measured=None):
     """The level law from the poles: each pole ``p`` moved to ``(1 + s x) / (1 - s x)``
     with ``x = (p - 1) / (p + 1)``, static gain ``1/s`` times the nominal one, around
-    ``datum`` (the outlet unless given)."""
+    ``datum`` (the outlet unless given). With ``measured``: the one-step prediction, the
+    measured output as the level and in the lags."""
     datum = outlet if datum is None else datum
     a, b = np.asarray(a, float), np.asarray(b, float)
     x = (np.roots(np.r_[1.0, a]) - 1) / (np.roots(np.r_[1.0, a]) + 1)
     A1 = 1 + a.sum()
     y = np.zeros(len(u))
+    past = y if measured is None else np.asarray(measured, float)
     for t in range(len(u)):
-        level = y[t - 1] if t >= 1 else 0.0
+        level = past[t - 1] if t >= 1 else 0.0
         s = (depth / max(abs(level - outlet), 1e-3 * depth)) ** alpha
         a_s = np.real(np.poly((1 + s * x) / (1 - s * x)))[1:]
         g = (1 + a_s.sum()) / (s * A1)
         acc = ((1 + a_s.sum()) * datum - g * A1 * datum) if t >= 1 else 0.0
-        acc -= sum(a_s[i] * y[t - 1 - i] for i in range(len(a)) if t - 1 - i >= 0)
+        acc -= sum(a_s[i] * past[t - 1 - i] for i in range(len(a)) if t - 1 - i >= 0)
         acc += g * sum(b[j] * u[t - 1 - j] for j in range(len(b)) if t - 1 - j >= 0)
         y[t] = acc
     return y
@@ -104,6 +123,10 @@ def test_level_dependent_matches_the_pole_law(a, b, datum):
     # the fitted parameter vector gives back the same law
     again = type(fx).from_params(model, fx.params(), jnp.asarray([1.0, mean, std, 1.0]))
     np.testing.assert_allclose(np.asarray(hbjax.simulate(again, v)), ref, atol=1e-9)
+    # the one-step prediction: the measured level sets the law
+    y_meas = ref + 0.05 * np.random.default_rng(2).standard_normal(len(v))
+    ref_pred = _level_loop(a, b, u, 0.5, mean - depth, depth, datum, measured=y_meas)
+    np.testing.assert_allclose(np.asarray(hbjax.predict(fx, v, y_meas)), ref_pred, atol=1e-9)
 
 
 def test_level_dependent_first_order_is_torricelli_in_equilibrium():
