@@ -176,6 +176,35 @@ def test_compare_recording_and_figures(system, tmp_path):
     assert len(axes) == 2 and "Ljung-Box" in axes[0].get_title()
 
 
+def test_compare_draws_a_results_free_run_spread(system):
+    """A refinement's result compared freely carries the spread of its free run that its
+    covariance implies, from the initial state compare estimated; a plain model and a
+    prediction horizon carry none."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    model, v, rng = system
+    records = [(v, np.asarray(hbjax.simulate(model, v, 0.2 * rng.normal(size=v.shape))))
+               for _ in range(2)]
+    res = hbjax.refine(model, records)
+    v_val = rng.uniform(-8, 8, 80).repeat(5)
+    y_val = np.asarray(hbjax.simulate(model, v_val, 0.2 * rng.normal(size=v_val.shape)))
+    both = hbjax.compare([res, model], v_val, y_val, names=["refined", "true"])
+    state = both.initial_states[0]
+    expected = np.asarray(res.free_run_std(v_val, u0=state.u0, y0=state.y0))
+    assert np.all(np.isfinite(expected)) and np.all(expected > 0)
+    np.testing.assert_allclose(both.y_std[0], expected, rtol=1e-10)
+    assert np.all(np.isnan(both.y_std[1]))
+    np.testing.assert_allclose(both.y_hat[0], np.asarray(
+        hbjax.simulate(res.model, v_val, u0=state.u0, y0=state.y0)), atol=1e-10)
+    assert "free-run sd" in str(both.summary())
+    assert np.all(np.isnan(hbjax.compare(res, v_val, y_val, horizon=3).y_std))
+    ax = hbjax.plot.plot_compare(both)
+    assert len(ax.collections) == 1  # the refined model's band; the plain model has none
+    band = ax.collections[0].get_paths()[0].vertices[:, 1]
+    assert np.isclose(band.max(), np.max(both.y_hat[0] + 2 * both.y_std[0]))
+
+
 # --------------------------------------------------------------------------- resid
 
 

@@ -13,7 +13,9 @@ from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent_unchecked, no_spread
 from .._misc import as_float_array, check_magnitude, float_dtype, is_traced, lagged, same_length
 from .recordings import as_input_output
+from .refine_result import AbstractRefinement
 from .stable import INITIAL_STATES, check_initial_state, start_response  # noqa: F401
+from .uncertainty import free_run_std
 
 
 def check_horizon(horizon):
@@ -77,6 +79,11 @@ class Comparison(eqx.Module):
     - `rmse`: root-mean-square error ``||y - y_hat|| / sqrt(T)``, same shape.
     - `y_hat`: the model outputs, ``(T,)`` or ``(models, T)``.
     - `y`, `v`, `dt`: the recording (``dt`` in seconds or ``None``).
+    - `y_std`: for a result of :func:`hbjax.refine` or :func:`hbjax.fit` compared freely,
+      the standard deviation of its free run, sample by sample, that the estimate's own
+      covariance implies (``result.free_run_std`` from the initial state used; the
+      estimation error only, not the noise); ``NaN`` for a plain model or a prediction
+      horizon. Same shape as `y_hat`.
     - `initial_states`: the :class:`hbjax.InitialState` used per model (``None`` for zero
       initial conditions).
     - `names`, `horizon` (``None``: free run), `initial_state`.
@@ -85,6 +92,7 @@ class Comparison(eqx.Module):
     fits: np.ndarray
     rmses: np.ndarray
     y_hats: np.ndarray
+    y_stds: np.ndarray
     y: np.ndarray
     v: np.ndarray
     initial_states: tuple
@@ -106,20 +114,33 @@ class Comparison(eqx.Module):
     def y_hat(self):
         return self.y_hats[0] if self.single else self.y_hats
 
+    @property
+    def y_std(self):
+        return self.y_stds[0] if self.single else self.y_stds
+
+    def _spread(self, k) -> str:
+        """Median free-run standard deviation of row ``k`` (``-`` where none)."""
+        sd = self.y_stds[k]
+        return "-" if np.all(np.isnan(sd)) else display.format_number(float(np.median(sd)))
+
     def summary(self) -> str:
         mode = "free run" if self.horizon is None else f"{self.horizon}-step-ahead prediction"
         lines = [(f"compare: {mode}, initial state {self.initial_state!r}, "
                  f"{self.y.shape[0]} samples"),
-                 f"{'model':<16}{'fit %':>10}{'RMSE':>12}{'u0':>12}  y0"]
-        for name, f, r, s in zip(self.names, self.fits, self.rmses, self.initial_states):
+                 f"{'model':<16}{'fit %':>10}{'RMSE':>12}{'free-run sd':>13}{'u0':>12}  y0"]
+        for k, (name, f, r, s) in enumerate(zip(self.names, self.fits, self.rmses,
+                                                 self.initial_states)):
             u0 = "0" if s is None else f"{float(s.u0):.4g}"
             y0 = "zeros" if s is None else np.array2string(np.asarray(s.y0), precision=4)
-            lines.append(f"{name:<16}{f:>10.2f}{r:>12.4g}{u0:>12}  {y0}")
-        rows = [[str(n), f"{f:.2f}", display.format_number(r),
+            lines.append(f"{name:<16}{f:>10.2f}{r:>12.4g}{self._spread(k):>13}{u0:>12}  {y0}")
+        lines.append("free-run sd: median over the samples of the free run's standard deviation "
+                     "its estimate's covariance implies (results of refine / fit only)")
+        rows = [[str(n), f"{f:.2f}", display.format_number(r), self._spread(k),
                  "0" if s is None else display.format_array(s.u0),
                  "zeros" if s is None else display.format_array(s.y0)]
-                for n, f, r, s in zip(self.names, self.fits, self.rmses, self.initial_states)]
-        table = display.Table(["model", "fit %", "RMSE", "u0", "y0"], rows)
+                for k, (n, f, r, s) in enumerate(zip(self.names, self.fits, self.rmses,
+                                                     self.initial_states))]
+        table = display.Table(["model", "fit %", "RMSE", "free-run sd", "u0", "y0"], rows)
         html = display.report(lines[0], tables=[table])._repr_html_()
         return display.Summary("\n".join(lines), html)
 
@@ -185,7 +206,9 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
 
     **Arguments:**
 
-    - `model`: an :class:`hbjax.AbstractModel` or a list of them (one row each).
+    - `model`: an :class:`hbjax.AbstractModel`, a result of :func:`hbjax.refine` or
+      :func:`hbjax.fit` (its model, and with ``horizon=None`` the free run's standard
+      deviation its covariance implies, ``.y_std``), or a list of these (one row each).
     - `v`, `y`: the recording; or an :class:`hbjax.Recording` as `v` (then `y` is omitted
       and the figure's time axis is in seconds when its ``dt`` is known).
     - `initial_state`: ``"estimate"`` (default; output lags and play state estimated per
@@ -200,17 +223,26 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
     - `horizon`: ``None`` for the free run, or an integer ``>= 1``.
     - `names`: labels of the models (default ``model 0``, ``model 1``, ...).
 
-    **Returns:** a :class:`Comparison` (``.fit``, ``.rmse``, ``.y_hat``, ``summary()``).
+    **Returns:** a :class:`Comparison` (``.fit``, ``.rmse``, ``.y_hat``, ``.y_std``,
+    ``summary()``).
     """
     check_initial_state(initial_state)
     horizon = check_horizon(horizon)
-    single = isinstance(model, AbstractModel)
+    single = isinstance(model, (AbstractModel, AbstractRefinement))
     models = [model] if single else model
     if not isinstance(models, (list, tuple)) or not models:
-        raise TypeError("`model` must be an hbjax model or a non-empty list of them.")
+        raise TypeError("`model` must be an hbjax model, a result of refine / fit, or a "
+                        "non-empty list of them.")
+    covariances = []
     for k, mdl in enumerate(models):
+        if isinstance(mdl, AbstractRefinement):
+            covariances.append(mdl.covariance)
+            continue
         if not isinstance(mdl, AbstractModel):
-            raise TypeError(f"`model[{k}]` must be an hbjax model, got {type(mdl).__name__}.")
+            raise TypeError(f"`model[{k}]` must be an hbjax model or a result of refine / fit, "
+                            f"got {type(mdl).__name__}.")
+        covariances.append(None)
+    models = [m.model if isinstance(m, AbstractRefinement) else m for m in models]
     if initial_state == "estimate":
         for k, mdl in enumerate(models):
             if not isinstance(mdl, Hammerstein) and not isinstance(
@@ -229,8 +261,8 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
         raise ValueError(
             "`y` is constant: the fit 100 (1 - ||y - y_hat|| / ||y - mean(y)||) is undefined "
             "for an output with no spread (compare the RMSE of the models' outputs instead).")
-    fits, rmses, y_hats, states = [], [], [], []
-    for mdl in models:
+    fits, rmses, y_hats, y_stds, states = [], [], [], [], []
+    for mdl, cov in zip(models, covariances):
         state, kw, free_run = None, {}, None
         if initial_state == "estimate" and not isinstance(mdl, Hammerstein):
             state, free_run = extension_state(mdl, v, y)
@@ -243,12 +275,17 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
         else:
             y_hat = predict_ahead(mdl, v, y, horizon, **kw)
         y_hat = np.asarray(y_hat)
+        y_std = np.full_like(y_hat, np.nan)
+        if cov is not None and horizon is None:
+            y_std = np.asarray(free_run_std(mdl, cov, v, **kw), y_hat.dtype)
         # unchecked: the records are checked above; a diverged y_hat gives -inf / nan
         fits.append(fit_percent_unchecked(y_np, y_hat))
         rmses.append(float(np.sqrt(np.mean((y_np - y_hat) ** 2))))
         y_hats.append(y_hat)
+        y_stds.append(y_std)
         states.append(state)
-    return Comparison(np.asarray(fits), np.asarray(rmses), np.stack(y_hats), y_np,
-                      np.asarray(v), tuple(states), names, horizon, initial_state, dt, single)
+    return Comparison(np.asarray(fits), np.asarray(rmses), np.stack(y_hats), np.stack(y_stds),
+                      y_np, np.asarray(v), tuple(states), names, horizon, initial_state, dt,
+                      single)
 
 

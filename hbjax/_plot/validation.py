@@ -16,13 +16,16 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
 
     **Arguments:**
 
-    - `result`: a :class:`hbjax.Comparison`, or a model (or list of models) to compare on
-      `v`, `y` (or an :class:`hbjax.Recording` as `v`) with ``compare_kwargs``
-      (``initial_state``, ``horizon``, ``names``).
+    - `result`: a :class:`hbjax.Comparison`, or a model or a result of refine / fit (or a
+      list of them) to compare on `v`, `y` (or an :class:`hbjax.Recording` as `v`) with
+      ``compare_kwargs`` (``initial_state``, ``horizon``, ``names``).
     - `ax`: matplotlib axes (a new figure if ``None``).
     - `window`: ``(start, stop)`` samples to show, ``0 <= start < stop <= len(y)``.
 
-    The time axis is in seconds when the recording's ``dt`` is known.
+    The time axis is in seconds when the recording's ``dt`` is known. A result of
+    :func:`hbjax.refine` or :func:`hbjax.fit` compared freely gets a band of two standard
+    deviations of its free run, from the estimate's own covariance (``Comparison.y_std``;
+    none where an unidentified parameter makes it infinite).
 
     **Returns:** the axes.
     """
@@ -38,6 +41,10 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
     ax.plot(t[sl], result.y[sl], color="k", lw=1.2, label="measured")
     for k, (name, fit) in enumerate(zip(result.names, result.fits)):
         ax.plot(t[sl], result.y_hats[k][sl], lw=1, color=f"C{k}", label=f"{name}: {fit:.1f}%")
+        sd = result.y_stds[k][sl]
+        if np.all(np.isfinite(sd)):
+            ax.fill_between(t[sl], result.y_hats[k][sl] - 2 * sd, result.y_hats[k][sl] + 2 * sd,
+                            color=f"C{k}", alpha=0.2, lw=0, label=f"{name}: +-2 sd of the estimate")
     mode = "simulated" if result.horizon is None else f"{result.horizon}-step prediction"
     ax.set_title(f"measured vs {mode} output (initial state: {result.initial_state})")
     ax.set_xlabel(label)
