@@ -205,6 +205,36 @@ def test_compare_draws_a_results_free_run_spread(system):
     assert np.isclose(band.max(), np.max(both.y_hat[0] + 2 * both.y_std[0]))
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compare_estimated_start_of_an_extension_is_never_worse_than_rest(system, seed):
+    """Effects that add a term to the output (an offset drift, a hum) pull the base's play
+    state estimate off; the estimated start must still fit at least as well as the zero
+    start, which it contains."""
+    model, _, _ = system
+    rng = np.random.default_rng(seed)
+    v = rng.uniform(-8, 8, 100).repeat(10)
+    for effect in (hbjax.EFFECTS["offset_drift"](model, rng.uniform(0.5, 2), rng.uniform(-1, 1)),
+                   hbjax.EFFECTS["periodic_disturbance"](model, rng.uniform(0.005, 0.05),
+                                                         rng.uniform(0.5, 2), 0.3)):
+        y = np.asarray(hbjax.simulate(effect, v, 0.05 * rng.normal(size=v.shape)))
+        est = hbjax.compare(effect, v, y).fit
+        zero = hbjax.compare(effect, v, y, initial_state="zero").fit
+        assert est >= zero - 1e-9, (type(effect).__name__, est, zero)
+
+
+def test_an_unstable_model_is_refused_not_nan(system):
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.shape)))
+    unstable = hbjax.Hammerstein(model.backlash, hbjax.ARX(a=[-4.0, 1.0], b=[1.0, 0.5]))
+    with pytest.raises(ValueError, match="unstable .largest pole modulus 3.73"):
+        hbjax.estimate_initial_state(unstable, v, y)
+    with pytest.raises(ValueError, match=r"`model\[1\]` overflows: its ARX block is unstable"):
+        hbjax.compare([model, unstable], v, y)
+    v_long, y_long = np.tile(v, 3), np.tile(y, 3)  # 900 samples: 3.73^k overflows at k ~ 540
+    with pytest.raises(ValueError, match="output of `model` overflows to inf/NaN from sample"):
+        hbjax.compare(unstable, v_long, y_long, horizon=700, initial_state="zero")
+
+
 # --------------------------------------------------------------------------- resid
 
 

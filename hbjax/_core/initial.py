@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._misc import as_float_array, check_finite, same_length, signal
+from .._misc import as_float_array, check_finite, is_traced, same_length, signal
 from .arx import all_pole
 from .model import AbstractModel, Hammerstein
 
@@ -187,4 +187,20 @@ def estimate_initial_state(model: Hammerstein, v, y=None) -> InitialState:
     y = signal(y, "y")
     same_length(v=v, y=y)
     dtype = jnp.result_type(v, y, model.arx.a)
-    return _estimate(model, v.astype(dtype), y.astype(dtype))
+    state = _estimate(model, v.astype(dtype), y.astype(dtype))
+    if not any(is_traced(x) for x in (v, y, state.cost)) and not bool(
+            jnp.isfinite(state.cost)):
+        # the least squares of a free run that overflows: nothing to return but NaN
+        raise ValueError(f"the initial state cannot be estimated: {unstable_why(model)}.")
+    return state
+
+
+def unstable_why(model) -> str:
+    """Why a model's free run overflowed, in words (the unstable ARX block of a Hammerstein
+    model or of an extension's base, assumption A3)."""
+    base = model if isinstance(model, Hammerstein) else getattr(model, "base", None)
+    if isinstance(base, Hammerstein) and not base.arx.is_stable():
+        radius = float(np.max(np.abs(np.asarray(base.arx.poles()))))
+        return (f"the free run of `model` overflows: its ARX block is unstable (largest pole "
+                f"modulus {radius:.4g}; assumption A3 asks < 1)")
+    return "the free run of `model` overflows to inf/NaN"

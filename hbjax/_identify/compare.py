@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core import display
-from .._core.initial import InitialState, estimate_initial_state, injection
+from .._core.initial import InitialState, estimate_initial_state, injection, unstable_why
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent_unchecked, no_spread
@@ -132,10 +132,12 @@ class Comparison(eqx.Module):
                                                  self.initial_states)):
             u0 = "0" if s is None else f"{float(s.u0):.4g}"
             y0 = "zeros" if s is None else np.array2string(np.asarray(s.y0), precision=4)
-            lines.append(f"{name:<16}{f:>10.2f}{r:>12.4g}{self._spread(k):>13}{u0:>12}  {y0}")
+            fit = f"{f:.2f}" if abs(f) < 1e6 else f"{f:.3g}"
+            lines.append(f"{name:<16}{fit:>10}{r:>12.4g}{self._spread(k):>13}{u0:>12}  {y0}")
         lines.append("free-run sd: median over the samples of the free run's standard deviation "
                      "its estimate's covariance implies (results of refine / fit only)")
-        rows = [[str(n), f"{f:.2f}", display.format_number(r), self._spread(k),
+        rows = [[str(n), f"{f:.2f}" if abs(f) < 1e6 else f"{f:.3g}", display.format_number(r),
+                 self._spread(k),
                  "0" if s is None else display.format_array(s.u0),
                  "zeros" if s is None else display.format_array(s.y0)]
                 for k, (n, f, r, s) in enumerate(zip(self.names, self.fits, self.rmses,
@@ -174,7 +176,8 @@ def extension_state(model: AbstractModel, v, y):
     base); the unknown past then enters the base's linear block as an equation error at
     the first ``n = max(na, nb)`` samples, whose responses ``H`` (:func:`hbjax._identify.
     stable.start_response`) are fitted to the free-run error by least squares:
-    ``y_hat = simulate(model, v, u0=u0) + H c``. Exact for effects acting on the input or
+    ``y_hat = simulate(model, v, u0=u0) + H c``; of the base's play state and the
+    convention's ``u0 = 0``, the one with the smaller squared error is kept. Exact for effects acting on the input or
     added to the linear block's output; a first-order account for effects inside the
     recursion. The returned :class:`InitialState` holds the base's output lags that give
     the same equation error (least squares when ``nb > na``)."""
@@ -183,11 +186,20 @@ def extension_state(model: AbstractModel, v, y):
         return own(v, y)
     base = model.base
     dtype = jnp.result_type(v, y, base.arx.a)
-    u0 = estimate_initial_state(base, v, y).u0
-    free = simulate(model, v, u0=u0).astype(dtype)
     h = start_response(base.arx.a.astype(dtype), base.arx.nb, v.shape[0], dtype)
-    coef = jnp.linalg.lstsq(h, y - free)[0]
-    y_hat = free + h @ coef
+    best = None
+    # The base's play state is estimated on an output that still holds the effect's own
+    # term (an offset, a drift, a hum), which can pull it off; the convention's rest
+    # (u0 = 0) is tried too, so the estimate never fits worse than the zero start (an
+    # offset drift simulated from rest fitted 99.5 % from the base's state alone).
+    for u0 in (estimate_initial_state(base, v, y).u0, jnp.zeros((), dtype)):
+        free = simulate(model, v, u0=u0).astype(dtype)
+        coef = jnp.linalg.lstsq(h, y - free)[0]
+        fitted = free + h @ coef
+        cost = float(jnp.sum((y - fitted) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, u0, coef, fitted)
+    _, u0, coef, y_hat = best
     n, na = h.shape[1], base.arx.na
     lags = jax.jacfwd(lambda y0: injection(base, y0, jnp.zeros((), dtype), n))(
         jnp.zeros(na, dtype))
@@ -262,23 +274,14 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
             "`y` is constant: the fit 100 (1 - ||y - y_hat|| / ||y - mean(y)||) is undefined "
             "for an output with no spread (compare the RMSE of the models' outputs instead).")
     fits, rmses, y_hats, y_stds, states = [], [], [], [], []
-    for mdl, cov in zip(models, covariances):
-        state, kw, free_run = None, {}, None
-        if initial_state == "estimate" and not isinstance(mdl, Hammerstein):
-            state, free_run = extension_state(mdl, v, y)
-            kw = {"u0": state.u0}  # the predictors: the play state only
-        elif initial_state == "estimate":
-            state = estimate_initial_state(mdl, v, y)
-            kw = {"u0": state.u0, "y0": state.y0}
-        if horizon is None:
-            y_hat = simulate(mdl, v, **kw) if free_run is None else free_run
-        else:
-            y_hat = predict_ahead(mdl, v, y, horizon, **kw)
-        y_hat = np.asarray(y_hat)
-        y_std = np.full_like(y_hat, np.nan)
-        if cov is not None and horizon is None:
-            y_std = np.asarray(free_run_std(mdl, cov, v, **kw), y_hat.dtype)
-        # unchecked: the records are checked above; a diverged y_hat gives -inf / nan
+    for k, (mdl, cov) in enumerate(zip(models, covariances)):
+        try:
+            state, y_hat, y_std = _run(mdl, cov, v, y, initial_state, horizon)
+        except ValueError as exc:
+            if single:
+                raise
+            # name the list entry whose run failed
+            raise ValueError(str(exc).replace("`model`", f"`model[{k}]`")) from exc
         fits.append(fit_percent_unchecked(y_np, y_hat))
         rmses.append(float(np.sqrt(np.mean((y_np - y_hat) ** 2))))
         y_hats.append(y_hat)
@@ -289,3 +292,26 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
                       single)
 
 
+def _run(model, covariance, v, y, initial_state, horizon):
+    """One row of :func:`compare`: ``(initial state or None, y_hat, y_std)``. An output
+    that overflows (an unstable model) is refused: its fit would be NaN."""
+    state, kw, free_run = None, {}, None
+    if initial_state == "estimate" and not isinstance(model, Hammerstein):
+        state, free_run = extension_state(model, v, y)
+        kw = {"u0": state.u0}  # the predictors: the play state only
+    elif initial_state == "estimate":
+        state = estimate_initial_state(model, v, y)
+        kw = {"u0": state.u0, "y0": state.y0}
+    if horizon is None:
+        y_hat = simulate(model, v, **kw) if free_run is None else free_run
+    else:
+        y_hat = predict_ahead(model, v, y, horizon, **kw)
+    y_hat = np.asarray(y_hat)
+    if not np.all(np.isfinite(y_hat)):
+        first = int(np.flatnonzero(~np.isfinite(y_hat))[0])
+        raise ValueError(f"the output of `model` overflows to inf/NaN from sample {first} on: "
+                         f"{unstable_why(model)}.")
+    y_std = np.full_like(y_hat, np.nan)
+    if covariance is not None and horizon is None:
+        y_std = np.asarray(free_run_std(model, covariance, v, **kw), y_hat.dtype)
+    return state, y_hat, y_std
