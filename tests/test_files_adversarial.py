@@ -93,6 +93,10 @@ def test_huge_dt_is_refused_not_written_as_inf(tmp_path):
     with pytest.raises(ValueError, match="exceeds the largest float64"):
         hbjax.save_recording(tmp_path / "r.csv", hbjax.Recording([1.0, 2, 3], [1.0, 2, 3], dt=1e308))
     assert not (tmp_path / "r.csv").exists()
+    # reading refuses what writing refuses: a file whose times overflow
+    np.savez(tmp_path / "huge.npz", v=np.arange(10.0), y=np.arange(10.0), dt=1e308)
+    with pytest.raises(ValueError, match="huge.npz: the time of sample 2, t0 . 2 . dt, exceeds the largest"):
+        hbjax.load_recording(tmp_path / "huge.npz")
     with pytest.raises(ValueError, match="BRFD layout"):
         hbjax.save_recording(tmp_path / "r.json", hbjax.Recording([1.0], [1.0]))
 

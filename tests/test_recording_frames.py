@@ -51,6 +51,13 @@ def test_channels_are_checked():
         hbjax.Recording(np.zeros(3), np.zeros(3), channels={"f": np.zeros(4)})
     with pytest.raises(ValueError, match="channel 'f' contains NaN"):
         hbjax.Recording(np.zeros(3), np.zeros(3), channels={"f": [0, np.nan, 1]})
+    # as `v` and `y`: never a cast to the real part or a parse of text
+    with pytest.raises(TypeError, match="channel 'f' must be real"):
+        hbjax.Recording(np.zeros(3), np.zeros(3), channels={"f": np.arange(3) + 5j})
+    with pytest.raises(TypeError, match="channel 'f' must be a numeric array"):
+        hbjax.Recording(np.zeros(3), np.zeros(3), channels={"f": np.array(["1", "2", "3"])})
+    with pytest.raises(TypeError, match="channel 'f' must be a numeric array, got str"):
+        hbjax.Recording(np.zeros(3), np.zeros(3), channels={"f": "abc"})
     rec = hbjax.Recording(np.zeros(3), np.zeros(3), channels={"f": [0, 1, 2]})
     with pytest.raises(TypeError):
         rec.channels["g"] = np.zeros(3)

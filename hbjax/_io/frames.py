@@ -89,6 +89,44 @@ def check_dt_agrees(dt, step: float, where: str, choose: str) -> float:
     return dt
 
 
+def finite_column(x, name: str) -> np.ndarray:
+    """A recorded signal as a read-only 1-D finite float64 array; ``name`` as the messages
+    give it (a backquoted argument or ``channel 'w'``). Text, objects and complex numbers
+    are refused, never parsed or cast to their real part."""
+    if isinstance(x, (str, bytes)) or x is None:
+        raise TypeError(f"{name} must be a numeric array, got {type(x).__name__}.")
+    arr = np.asarray(x)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise TypeError(f"{name} must be a numeric array, got dtype {arr.dtype}.")
+    if np.iscomplexobj(arr):
+        raise TypeError(f"{name} must be real, got complex dtype {arr.dtype}.")
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array, got shape {arr.shape}.")
+    if arr.shape[0] == 0:  # would be written, but not read back, and estimate nothing
+        raise ValueError(f"{name} is empty; a recording needs at least one sample.")
+    arr = np.array(arr, dtype=np.float64, copy=True)
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if bad.size:
+        raise ValueError(
+            f"{name} contains NaN or inf ({bad.size} samples, first at index {bad[0]})."
+        )
+    arr.setflags(write=False)
+    return arr
+
+
+def check_times(rec) -> None:
+    """Refuse a recording whose sample times ``t0 + k dt`` overflow float64 (``dt`` near
+    1e308): they could be neither written nor used."""
+    with np.errstate(over="ignore"):  # an overflow is refused just below
+        t = rec.t
+    if not np.all(np.isfinite(t)):
+        k = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ValueError(
+            f"the time of sample {k}, t0 + {k} * dt, exceeds the largest float64 "
+            f"(`dt` = {rec.dt!r}, `t0` = {rec.t0!r}); rescale the time unit."
+        )
+
+
 def check_channels(channels, n: int) -> types.MappingProxyType:
     """``name -> 1-D finite float64 array of n samples`` (read-only), from a mapping."""
     if channels is None:
@@ -99,16 +137,10 @@ def check_channels(channels, n: int) -> types.MappingProxyType:
     for name, x in channels.items():
         if not isinstance(name, str):
             raise TypeError(f"channel names must be strings, got {name!r}.")
-        arr = np.array(x, dtype=np.float64, copy=True)
-        if arr.shape != (n,):
+        if np.shape(x) != (n,) and not isinstance(x, (str, bytes)) and x is not None:
             raise ValueError(f"channel {name!r} must hold {n} samples like `v`, got shape "
-                             f"{arr.shape}.")
-        bad = np.flatnonzero(~np.isfinite(arr))
-        if bad.size:
-            raise ValueError(f"channel {name!r} contains NaN or inf ({bad.size} samples, first "
-                             f"at index {bad[0]}).")
-        arr.setflags(write=False)
-        out[name] = arr
+                             f"{np.shape(x)}.")
+        out[name] = finite_column(x, f"channel {name!r}")
     return types.MappingProxyType(out)
 
 

@@ -58,8 +58,8 @@ class Recording:
     trend: _frames.Trend | None = None
 
     def __post_init__(self):
-        v = _finite_column(self.v, "v")
-        y = _finite_column(self.y, "y")
+        v = _frames.finite_column(self.v, "`v`")
+        y = _frames.finite_column(self.y, "`y`")
         if v.shape != y.shape:
             raise ValueError(
                 f"`v` and `y` must have equal lengths, got {v.shape[0]} and {y.shape[0]} samples."
@@ -71,6 +71,7 @@ class Recording:
         object.__setattr__(self, "name", str(self.name))
         object.__setattr__(self, "channels", _frames.check_channels(self.channels, v.shape[0]))
         object.__setattr__(self, "t0", _frames.time_origin(self.t0))
+        _frames.check_times(self)
 
     def __len__(self) -> int:
         return int(self.v.shape[0])
@@ -138,28 +139,6 @@ class Recording:
         extra = f", channels={list(self.channels)}" if self.channels else ""
         return (f"Recording(name={self.name!r}, samples={len(self)}, dt={dt}, "
                 f"source={self.source!r}{extra})")
-
-
-def _finite_column(x, name: str) -> np.ndarray:
-    if isinstance(x, (str, bytes)) or x is None:
-        raise TypeError(f"`{name}` must be a numeric array, got {type(x).__name__}.")
-    arr = np.asarray(x)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
-        raise TypeError(f"`{name}` must be a numeric array, got dtype {arr.dtype}.")
-    if np.iscomplexobj(arr):
-        raise TypeError(f"`{name}` must be real, got complex dtype {arr.dtype}.")
-    if arr.ndim != 1:
-        raise ValueError(f"`{name}` must be a 1-D array, got shape {arr.shape}.")
-    if arr.shape[0] == 0:  # would be written, but not read back, and estimate nothing
-        raise ValueError(f"`{name}` is empty; a recording needs at least one sample.")
-    arr = np.array(arr, dtype=np.float64, copy=True)
-    bad = np.flatnonzero(~np.isfinite(arr))
-    if bad.size:
-        raise ValueError(
-            f"`{name}` contains NaN or inf ({bad.size} samples, first at index {bad[0]})."
-        )
-    arr.setflags(write=False)
-    return arr
 
 
 # ----------------------------------------------------------------------------- reading
@@ -324,14 +303,8 @@ def save_recording(path, recording: Recording, *, overwrite: bool = False) -> pa
             f"{str(path)!r}: save_recording writes CSV or .npz; a .json file would be read back "
             "as the BRFD layout. Choose a .csv or .npz name."
         )
-    with np.errstate(over="ignore"):  # an overflow is refused just below
-        t = recording.t
-    if not np.all(np.isfinite(t)):
-        k = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise ValueError(
-            f"the time of sample {k}, t0 + {k} * dt, exceeds the largest float64 "
-            f"(`dt` = {recording.dt!r}, `t0` = {recording.t0!r}); rescale the time unit."
-        )
+    _frames.check_times(recording)
+    t = recording.t
     names = list(recording.channels)
     if suffix == ".npz":
         arrays = {"v": recording.v, "y": recording.y,
