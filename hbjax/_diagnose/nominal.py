@@ -14,7 +14,8 @@ from .._core.cache import ensure_compilation_cache
 from .._core.model import Hammerstein
 from .._core.precision import require_x64
 from .._identify.linear import arx_least_squares
-from .._misc import as_float_array, check_finite, same_length
+from .._identify.recordings import check_criterion
+from .._misc import as_float_array, check_finite, positive_float, positive_int, same_length
 from . import candidates as cands
 from .kernel import MAX_DELAY
 from .kernel_effect import base_theta
@@ -50,26 +51,61 @@ def _linear_start(v, y, na, nb, m, gap):
     return Hammerstein(Backlash(c1, c2), ARX(a, b))
 
 
-def identify_nominal(v, y, *, na: int = 2, nb: int = 2, m: int = 3, gap: float | None = None,
+def _orders(start, na, nb, m):
+    """``(na, nb, m)``: given, else the start's, else 2, 2 and 3; a start must be a
+    :class:`Hammerstein` whose orders agree with any given."""
+    if start is not None:
+        if not isinstance(start, Hammerstein):
+            raise TypeError(f"`start` must be an hbjax.Hammerstein, got {type(start).__name__}.")
+        own = {"na": start.arx.na, "nb": start.arx.nb, "m": start.backlash.m}
+        given = {"na": na, "nb": nb, "m": m}
+        for name, value in given.items():
+            if value is not None and value != own[name]:
+                raise ValueError(f"`{name}`={value!r} differs from the `start` model's "
+                                 f"{name} = {own[name]}: the fit keeps the start's structure.")
+        return own["na"], own["nb"], own["m"]
+    na = positive_int(2 if na is None else na, "na", minimum=0)
+    nb = positive_int(2 if nb is None else nb, "nb")
+    m = positive_int(3 if m is None else m, "m")
+    if m < 2:
+        raise ValueError(f"`m` must be >= 2 (affine branches at least), got {m}.")
+    return na, nb, m
+
+
+def identify_nominal(v, y, *, na: int | None = None, nb: int | None = None,
+                     m: int | None = None, gap: float | None = None,
                      start: Hammerstein | None = None, max_steps: int = 200,
                      criterion: str = "prediction", transient: int = 0) -> Hammerstein:
     """Prediction-error HB-Hammerstein model of ``(v, y)`` (eq. (10) structure).
 
-    **Arguments:** `v`, `y` (recording), `na`, `nb`, `m` (orders; branch degree ``m - 1``),
-    `gap` (half-width of the initial backlash band, default 2% of the input range), `start`
-    (a model to start from instead of the linear least-squares one), `max_steps`,
-    `criterion` (``"prediction"`` or ``"simulation"``: output error, better for slow
-    processes), `transient` (samples at the start left out of the criterion).
+    **Arguments:** `v`, `y` (recording), `na`, `nb`, `m` (orders, default 2, 2 and 3, or
+    those of `start`; branch degree ``m - 1``), `gap` (half-width of the initial backlash
+    band, a number > 0, default 2% of the input range), `start` (an
+    :class:`hbjax.Hammerstein` to start from instead of the linear least-squares one; its
+    orders are the fit's), `max_steps` (>= 1), `criterion` (``"prediction"`` or
+    ``"simulation"``: output error, better for slow processes), `transient` (samples at
+    the start left out of the criterion, ``0 <= transient`` and fewer than the record
+    holds).
     """
     require_x64("identify_nominal")
     ensure_compilation_cache()
     v = np.asarray(check_finite(as_float_array(v, "v", ndim=1, dtype=jnp.float64), "v"))
     y = np.asarray(check_finite(as_float_array(y, "y", ndim=1, dtype=jnp.float64), "y"))
     same_length(v=v, y=y)
-    if m < 2:
-        raise ValueError(f"`m` must be >= 2 (affine branches at least), got {m}.")
+    na, nb, m = _orders(start, na, nb, m)
+    max_steps = positive_int(max_steps, "max_steps")
+    check_criterion(criterion)
+    transient = positive_int(transient, "transient", minimum=0)
+    if transient >= v.shape[0]:
+        raise ValueError(f"`transient` must leave samples in the criterion: it is {transient} "
+                         f"for a record of {v.shape[0]} samples.")
+    if gap is not None and start is not None:
+        raise ValueError("`gap` sets the band of the linear least-squares start; with `start` "
+                         "given it has no effect: pass one of them.")
+    if gap is not None:
+        gap = positive_float(gap, "gap")
     if start is None:
-        gap = 0.02 * float(np.ptp(v)) if gap is None else float(gap)
+        gap = 0.02 * float(np.ptp(v)) if gap is None else gap
         make = _static_start if criterion == "simulation" else _linear_start
         start = make(v, y, na, nb, m, gap)
     lay, theta0 = base_theta(start)
