@@ -231,14 +231,14 @@ def test_diagnose_reports_and_saves_the_extended_model(tmp_path, system):
     v = np.repeat(rng.uniform(-6, 6, 100), 8)
     truth = OutputSaturation(system, None, jnp.asarray(12.0))
     y = hbjax.simulate(truth, v, 0.1 * rng.standard_normal(v.size))
-    (tmp_path / "rec.csv").write_text(
-        "time,drive,level\n" + "".join(f"{k},{a!r},{b!r}\n" for k, (a, b) in
-                                       enumerate(zip(v.tolist(), np.asarray(y).tolist())))
-    )
+    # a recorded channel that explains nothing (a sensor's own noise): offered, not named
+    hbjax.save_recording(tmp_path / "rec.csv", hbjax.Recording(
+        v, np.asarray(y), dt=1.0, channels={"probe": rng.standard_normal(v.size)}))
     hbjax.save_model(tmp_path / "nominal.json", system)
-    proc = run("diagnose", "--model", "nominal.json", "rec.csv", "--input", "drive",
-               "--output", "level", "--effects", "output_saturation", "--json", "report.json",
+    proc = run("diagnose", "--model", "nominal.json", "rec.csv", "--input", "v",
+               "--output", "y", "--effects", "output_saturation", "--json", "report.json",
                "--plot", "report.png", "--save-model", "best.json", cwd=tmp_path)
+    assert "channels offered: probe" in proc.stdout
     assert "1. output_saturation" in proc.stdout
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["format"] == "hbjax-diagnosis" and report["report"]["best"] == "output_saturation"

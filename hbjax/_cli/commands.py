@@ -304,8 +304,11 @@ def cmd_diagnose(args) -> int:
                              "separated list of effect names, or leave --effects out to try "
                              "them all.")
     options = {} if args.criterion is None else {"criterion": args.criterion}
-    report = diagnose(model, rec.v, rec.y, holdout=args.holdout, effects=effects, **options)
-    print(f"{rec.source}: {len(rec)} samples, nominal model {args.model}")
+    channels = None if args.no_channels or not rec.channels else dict(rec.channels)
+    report = diagnose(model, rec.v, rec.y, holdout=args.holdout, effects=effects,
+                      channels=channels, **options)
+    offered = f"; channels offered: {', '.join(channels)}" if channels else ""
+    print(f"{rec.source}: {len(rec)} samples, nominal model {args.model}{offered}")
     print(report.summary())
     items = []  # written together at the end: all or nothing
     if args.json is not None:

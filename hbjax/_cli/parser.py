@@ -214,7 +214,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Compare a recording of the real system with the nominal model, locate "
         "and name the structured mismatch (saturations, delays, drifts, unmodelled dynamics, "
         "...) and print the readable report; optionally write it as JSON, plot it and save "
-        "the extended model of the best finding as a model file.\n\n" + _EPILOG_RECORDINGS,
+        "the extended model of the best finding as a model file. The recording's other "
+        "columns (e.g. a recorded force) are offered as channels that may explain the "
+        "mismatch (a missing input), as hbjax.diagnose(..., channels=...) takes them; "
+        "--no-channels leaves them out.\n\n" + _EPILOG_RECORDINGS,
         example="hbjax diagnose --model model.json rec.csv --json report.json --plot report.png",
     )
     diag.add_argument("--model", required=True, help="nominal model file (a Hammerstein)")
@@ -224,6 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="final fraction of the record kept out of every fit (default 0.3)")
     diag.add_argument("--effects", default=None,
                       help="comma-separated effect names to consider (default: all)")
+    diag.add_argument("--no-channels", action="store_true",
+                      help="do not offer the recording's other columns as channels")
     _criterion(diag, None, "fit criterion: one-step prediction (default) or free-run "
                "simulation error (slow processes)")
     diag.add_argument("--json", default=None, help="write the report as JSON")
