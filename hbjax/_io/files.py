@@ -36,11 +36,20 @@ _NO_HARD_LINKS = {errno.EPERM, errno.EACCES, errno.EXDEV, errno.EMLINK, errno.EN
 HINT = "overwrite=True (--force on the command line)"
 
 
+def as_path(path) -> pathlib.Path:
+    """``path`` as a Path; anything but a ``str`` or ``os.PathLike`` (``None``, a number,
+    an open file) is a ``TypeError`` naming `path`."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"`path` must be a file name (a str or os.PathLike), got "
+                        f"{type(path).__name__}.")
+    return pathlib.Path(path)
+
+
 def check_readable(path, what: str) -> pathlib.Path:
     """``path`` as a Path, if it names something readable as a file: a regular file or a
     FIFO (``<(...)`` process substitution). ``FileNotFoundError`` / ``IsADirectoryError`` /
     ``ValueError`` (devices, sockets) otherwise, naming ``what`` and the path."""
-    p = pathlib.Path(path)
+    p = as_path(path)
     try:
         mode = os.stat(p).st_mode
     except FileNotFoundError:
@@ -94,6 +103,7 @@ def check_writable(path, *, overwrite: bool, hint: str = HINT) -> pathlib.Path:
     """Everything about the output ``path`` that can be checked before writing: not ``-``,
     not a directory, block device or socket, folder exists, and no existing file unless
     ``overwrite`` (devices and FIFOs are written into). Returns the path."""
+    as_path(path)
     if str(path) == "-":
         raise ValueError(
             "'-' is not a file name hbjax writes to; to write to standard output give "

@@ -18,7 +18,7 @@ import pathlib
 import numpy as np
 
 from .._misc import check_bool
-from .files import atomic_write as atomic_write, check_readable
+from .files import as_path, atomic_write as atomic_write, check_readable
 
 from . import frames as _frames
 from .csvtable import read_csv_table
@@ -297,7 +297,7 @@ def save_recording(path, recording: Recording, *, overwrite: bool = False) -> pa
     overwrite = check_bool(overwrite, "overwrite")
     if not isinstance(recording, Recording):
         raise TypeError(f"`recording` must be an hbjax.Recording, got {type(recording).__name__}.")
-    suffix = pathlib.Path(path).suffix.lower()
+    suffix = as_path(path).suffix.lower()
     if suffix == ".json":
         raise ValueError(
             f"{str(path)!r}: save_recording writes CSV or .npz; a .json file would be read back "
