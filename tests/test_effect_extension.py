@@ -174,6 +174,16 @@ def test_valid_effects_and_traced_values_pass(system):
     ok = FX["output_saturation"](system, None, 3)  # an open side; an integer level
     assert ok.upper == 3
     FX["extra_delay"](system, 0)
+    # NumPy integers (a delay from np.argmin, a change time from a search) are stored as
+    # Python ints: no static JAX/NumPy scalar in the tree, and equal models hash alike
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        delayed = FX["extra_delay"](system, np.int64(3))
+        changed = FX["parameter_change"](system, np.int64(5), jnp.zeros(2), jnp.zeros(2),
+                                         jnp.zeros(3), jnp.zeros(3))
+    assert type(delayed.delay) is int and type(changed.time) is int
+    assert delayed == FX["extra_delay"](system, 3)
     FX["input_saturation"](system, jnp.asarray(-2.0), jnp.asarray(3.0))
     # traced values: shape and type are checked, values (unknown while tracing) are not
     v = jnp.linspace(-3, 3, 40)

@@ -115,7 +115,7 @@ def model_html(model) -> str:
 FIGURES = (
     ("criterion", "criterion"),
     ("gauge", "gauge"),
-    ("noise_std", "noise std (equation error)"),
+    ("noise_std", "noise std (criterion's residuals)"),  # equation or output error
     ("sim_fit_pooled", "free-run fit on estimation data (%)"),
     ("sim_fit", "free-run fit per estimation record (%)"),
     ("input_effect_p", "p-value of no input effect"),

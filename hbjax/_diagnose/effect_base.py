@@ -110,6 +110,13 @@ ANCHORED = " (nominal base)"
 NO_CHANGE = 2**30  # change time "after the end of any record"
 
 
+def python_int(x):
+    """A NumPy integer as a Python ``int`` (a static field of an effect: equinox warns of,
+    and hashes by identity, an array set as static); anything else as given, for the
+    field's constraint to check (``2.5`` is refused there, not rounded here)."""
+    return int(x) if isinstance(x, np.integer) else x
+
+
 def neutral_ints(delay=0, time=NO_CHANGE):
     """The kernel's discrete values ``[extra delay, change time]``."""
     return np.array([delay, time], dtype=np.int32)

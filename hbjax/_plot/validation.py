@@ -4,7 +4,9 @@ with their 99% bands (``resid``)."""
 import matplotlib.pyplot as plt
 import numpy as np
 
+from .._core.model import AbstractModel
 from .._identify.compare import Comparison, compare
+from .._identify.refine_result import AbstractRefinement
 from .._identify.residual_analysis import ResidualAnalysis, resid
 from . import checks
 from .recording import time_axis
@@ -31,6 +33,9 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
     """
     ax = checks.axes(ax, "ax")
     if not isinstance(result, Comparison):
+        if not isinstance(result, (AbstractModel, AbstractRefinement, list, tuple)):
+            raise TypeError(f"`result` must be a Comparison, an hbjax model, a result of "
+                            f"refine / fit, or a list of them, got {type(result).__name__}.")
         if v is None:
             raise TypeError("`v` is missing: pass a Comparison, or a model with `v` and `y`.")
         result = compare(result, v, y, **compare_kwargs)

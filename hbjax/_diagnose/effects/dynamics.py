@@ -14,7 +14,7 @@ from ..._core.arx import ARX
 from ..._core.backlash import Backlash
 from ..._core.model import Hammerstein
 from ..._core.params import param_names
-from ..effect_base import NO_CHANGE, EffectConstraint, neutral_ints
+from ..effect_base import NO_CHANGE, EffectConstraint, neutral_ints, python_int
 from ..explain import effect_windows, rounded
 from ..kernel import MAX_DELAY
 from ..kernel_effect import AbstractKernelEffect
@@ -71,7 +71,7 @@ class ExtraDelay(AbstractKernelEffect):
     (``u(t) = 0`` for ``t < 0``)."""
 
     base: Hammerstein
-    delay: int = eqx.field(static=True)
+    delay: int = eqx.field(static=True, converter=python_int)
 
     name: ClassVar[str] = "extra_delay"
     int_fields: ClassVar[dict] = {"delay": 0}
@@ -155,7 +155,7 @@ class ParameterChange(AbstractKernelEffect):
     ``a + da``, ``b + db``, ``c1 + dc1``, ``c2 + dc2``."""
 
     base: Hammerstein
-    time: int = eqx.field(static=True)
+    time: int = eqx.field(static=True, converter=python_int)
     da: Float[Array, " na"]
     db: Float[Array, " nb"]
     dc1: Float[Array, " m"]
