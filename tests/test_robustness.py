@@ -598,6 +598,8 @@ bad(FILES, "load_model", TypeError, "`path` must be a file name .a str or os.Pat
 bad(FILES, "save_model", TypeError, "`path` must be a file name .a str or os.PathLike., got int", lambda t: hbjax.save_model(3, M))
 bad(FILES, "save_recording", TypeError, "`path` must be a file name .a str or os.PathLike., got NoneType", lambda t: hbjax.save_recording(None, hbjax.Recording(V, Y)))
 bad(WRONG_TYPE, "plot_compare", TypeError, "`result` must be a Comparison, an hbjax model, .* got str", lambda t: hbjax.plot.plot_compare("x"))
+bad(WRONG_TYPE, "Recording", TypeError, "`recording` must be an hbjax.Recording .its times place the trend., got ndarray", lambda t: hbjax.Recording(V, Y, dt=1.0).detrend().trend.restore(np.arange(5.0)))
+bad(MAGNITUDE, "simulate", ValueError, "`model` is stable, so the values given .* are too large", lambda t: hbjax.simulate(M, V, y0=[1e308, -1e308]))
 bad(OPTION, "identify_nominal", ValueError, "`criterion` must be one of", lambda t: hbjax.identify_nominal(V_D, Y_D, criterion="simulaton"))
 bad(OPTION, "identify_nominal", ValueError, "`gap` must be a finite number > 0, got -1.0", lambda t: hbjax.identify_nominal(V_D, Y_D, gap=-1.0))
 bad(OPTION, "identify_nominal", TypeError, "`gap` must be a real number, got '0.1'", lambda t: hbjax.identify_nominal(V_D, Y_D, gap="0.1"))

@@ -72,7 +72,11 @@ def _check_output(y, finite, model, what="simulate"):
     if what != "simulate":
         raise ValueError(f"{_WHY[what][:-1]} (from sample {first} on).")
     why = "the model diverges"
-    if isinstance(model, Hammerstein) and not model.arx.is_stable():
+    if isinstance(model, Hammerstein) and model.arx.is_stable():
+        # a stable block cannot diverge: what it was given is out of range
+        why = ("`model` is stable, so the values given (`v`, `noise`, `u0`, `y0`) are too "
+               "large for the output's precision")
+    elif isinstance(model, Hammerstein):
         radius = float(np.max(np.abs(np.asarray(model.arx.poles()))))
         why = (f"the ARX block of `model` is unstable (largest pole modulus {radius:.4g}; "
                "assumption A3 asks < 1)")

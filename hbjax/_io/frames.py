@@ -36,6 +36,9 @@ class Trend:
 
     def restore(self, recording):
         """``recording`` with the trend added back (MATLAB's ``retrend``)."""
+        if not hasattr(recording, "t") or not dataclasses.is_dataclass(recording):
+            raise TypeError(f"`recording` must be an hbjax.Recording (its times place the "
+                            f"trend), got {type(recording).__name__}.")
         v_trend, y_trend = self.evaluate(recording.t)
         return dataclasses.replace(recording, v=recording.v + v_trend, y=recording.y + y_trend,
                                    trend=None)
