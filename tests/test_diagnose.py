@@ -148,6 +148,7 @@ def test_hand_written_jacobian_matches_autodiff(criterion):
     lay, theta, ints, consts = rec.true_model.parts()
     # move every extension off its neutral value so that every column is exercised
     for name, val in (("friction", 0.3), ("sin_cos", 0.2), ("sin_freq", 0.05), ("drift_rate", 1e-3),
+                      ("drift_decay", 4e-3),
                       ("noise_d", [0.1, -0.05]), ("in_hi", 3.0), ("c1_extra", 0.1),
                       ("da", [0.01, 0.0]), ("db", [0.1, 0.0]), ("a_extra", 0.02)):
         theta = lay.put(theta, name, val)

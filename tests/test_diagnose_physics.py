@@ -179,3 +179,44 @@ def test_new_effect_named_over_seeds(effect):
         if len(hits) == 2 or len(misses) == 2:
             break
     assert len(hits) >= 2, misses
+
+
+def test_settling_drift_follows_its_exponential():
+    """The drift of the equation in ``OffsetDrift``: linear at ``decay = 0``, and
+    ``rate (1 - exp(-decay t)) / decay`` otherwise, against NumPy."""
+    model = _system()
+    v = np.repeat(np.random.default_rng(4).uniform(-3, 3, 40), 10)
+    t = np.arange(v.size, dtype=float)
+    base = np.asarray(hbjax.simulate(model, v))
+    for decay, shape in ((0.0, t), (0.01, (1 - np.exp(-0.01 * t)) / 0.01),
+                         (-0.002, (1 - np.exp(0.002 * t)) / -0.002)):
+        fx = hbjax.EFFECTS["offset_drift"](model, jnp.asarray(0.3), jnp.asarray(0.02),
+                                          jnp.asarray(decay))
+        np.testing.assert_allclose(np.asarray(hbjax.simulate(fx, v)), base + 0.3 + 0.02 * shape,
+                                   atol=1e-10)
+
+
+@pytest.mark.slow
+def test_settling_drift_is_named_as_a_settling_drift():
+    """A statistic over the first three settling drifts (``1 - exp(-t / tau)``, tau 0.3-1.5
+    record lengths) of the independent generator from seed 700 on: at least two are named
+    ``offset_drift`` with a fitted drift that settles (``decay > 0``, time constant within
+    0.1-5 record lengths). With the drift linear only, 3 of 5 such records of the study
+    seeds 1366-1367 were named a parameter change."""
+    hits, misses, seed = [], [], 700
+    while len(hits) + len(misses) < 3:
+        c = concealed_case(np.random.default_rng(seed), "offset_drift", n=2000)
+        seed += 1
+        if "exponential" not in c["truth"]["shape"]:
+            continue
+        d = hbjax.diagnose(c["nominal_model"], c["v"], c["y"], progress=False)
+        best = d.best
+        if best is not None and best.effect == "offset_drift" and float(best.model.decay) > 0:
+            tau = 1.0 / float(best.model.decay)
+            if 0.1 * 2000 < tau < 5 * 2000 and "settling" in best.physics:
+                hits.append(seed - 1)
+                continue
+        misses.append((seed - 1, best and best.effect, best and float(getattr(best.model, "decay", 0))))
+        if len(misses) == 2:
+            break
+    assert len(hits) >= 2, misses

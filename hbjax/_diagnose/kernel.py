@@ -15,7 +15,8 @@ Extended model (all terms together), with ``s(t) = 1[t >= tau]``:
   ``t < 0``);
 - linear block: ``(A + s dA + ax q^-(na+1)) y_lin = (B + s dB + bx q^-(nb+1)) q^-d u_s + xi_c``
   with the equation error coloured by ``D(q^-1) xi_c = xi``;
-- output path: ``y = clip(y_lin + drift + sinusoid + g(y_lin) + F_c tanh(du/w), out_lo, out_hi)``.
+- output path: ``y = clip(y_lin + drift + sinusoid + g(y_lin) + F_c tanh(du/w), out_lo, out_hi)``
+  (the drift linear or settling, :func:`drift`).
 
 The prediction error used by every fit is ``eps = D (A_t (y - y_pre))`` with ``y_pre`` the
 simulated output before the output clip: for the nominal model it is exactly the ARX
@@ -83,7 +84,7 @@ class Layout(NamedTuple):
             ("a_extra", 1), ("b_extra", 1), ("c1_extra", 1), ("c2_extra", 1),
             ("da", self.na), ("db", self.nb), ("dc1", self.m), ("dc2", self.m),
             ("in_lo", 1), ("in_hi", 1), ("out_lo", 1), ("out_hi", 1),
-            ("drift_offset", 1), ("drift_rate", 1),
+            ("drift_offset", 1), ("drift_rate", 1), ("drift_decay", 1),
             ("sin_freq", 1), ("sin_cos", 1), ("sin_sin", 1),
             ("nl2", 1), ("nl3", 1), ("friction", 1), ("noise_d", 2),
         ]
@@ -185,11 +186,28 @@ def simulate_full(lay: Layout, theta, ints, consts, v, noise, u0, clip: bool = T
     return output_path(lay, theta, consts, y_lin, u_used, clip), u_used
 
 
+def drift(lay: Layout, theta, t):
+    """The output drift ``offset + rate (1 - exp(-k t)) / k`` at times ``t`` (samples) and
+    its derivatives with respect to ``rate`` and ``k`` (``drift_decay``): a drift that
+    settles with time constant ``1 / k`` (thermal settling), linear (``offset + rate t``)
+    at ``k = 0``, where it is computed as exactly that. ``(1 - exp(-x)) / x`` is written
+    ``-expm1(-x) / x`` and by its series near ``x = 0``; ``x = k t`` is held above -30
+    so a growing drift (``k < 0``) cannot overflow."""
+    offset, rate, k = (lay.get(theta, name)[0] for name in
+                       ("drift_offset", "drift_rate", "drift_decay"))
+    x = jnp.maximum(k * t, -30.0)
+    small = jnp.abs(x) < 1e-6
+    xs = jnp.where(small, 1.0, x)  # the other branch's argument, kept finite
+    phi = jnp.where(small, 1.0 - x / 2 + x * x / 6, -jnp.expm1(-xs) / xs)
+    dphi = jnp.where(small, -0.5 + x / 3, (jnp.exp(-xs) * (1.0 + xs) - 1.0) / xs**2)
+    return offset + rate * (t * phi), t * phi, rate * t * t * dphi
+
+
 def output_path(lay: Layout, theta, consts, y_lin, u_used, clip: bool = True):
     """Additive and static output-side terms, then the output clip (unless ``clip=False``)."""
     g = lambda name: lay.get(theta, name)[0]  # noqa: E731
     t = jnp.arange(y_lin.shape[0], dtype=y_lin.dtype)
-    y = y_lin + g("drift_offset") + g("drift_rate") * t
+    y = y_lin + drift(lay, theta, t)[0]
     phase = 2 * math.pi * g("sin_freq") * t
     y = y + g("sin_cos") * jnp.cos(phase) + g("sin_sin") * jnp.sin(phase)
     z = (y_lin - consts[1]) / consts[2]
@@ -314,7 +332,7 @@ def fast_prediction_error(lay: Layout, theta, ints, consts, v, y, u0=0.0,
     du = u - jnp.concatenate([u[:1], u[:-1]])
     tf = t.astype(v.dtype)
     phase = 2 * math.pi * g("sin_freq")[0] * tf
-    add = (g("drift_offset")[0] + g("drift_rate")[0] * tf + g("sin_cos")[0] * jnp.cos(phase)
+    add = (drift(lay, theta, tf)[0] + g("sin_cos")[0] * jnp.cos(phase)
            + g("sin_sin")[0] * jnp.sin(phase) + g("friction")[0] * jnp.tanh(du / consts[3]))
     r = y - add
     if output_static:
@@ -389,10 +407,11 @@ def fast_jacobian(lay: Layout, theta, ints, consts, v, y, u0=0.0, criterion="pre
     phase = 2 * math.pi * g("sin_freq")[0] * tf
     sc, ss, F = g("sin_cos")[0], g("sin_sin")[0], g("friction")[0]
     th = jnp.tanh(du / consts[3])
-    add = (g("drift_offset")[0] + g("drift_rate")[0] * tf + sc * jnp.cos(phase)
-           + ss * jnp.sin(phase) + F * th)
+    level, d_rate, d_decay = drift(lay, theta, tf)
+    add = level + sc * jnp.cos(phase) + ss * jnp.sin(phase) + F * th
     Dadd = (F * (1 - th**2) / consts[3])[:, None] * Ddu
-    for name, col in (("drift_offset", jnp.ones_like(tf)), ("drift_rate", tf),
+    for name, col in (("drift_offset", jnp.ones_like(tf)), ("drift_rate", d_rate),
+                      ("drift_decay", d_decay),
                       ("sin_freq", 2 * math.pi * tf * (ss * jnp.cos(phase) - sc * jnp.sin(phase))),
                       ("sin_cos", jnp.cos(phase)), ("sin_sin", jnp.sin(phase)), ("friction", th)):
         Dadd = Dadd.at[:, slots[name][0]].add(col)
