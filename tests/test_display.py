@@ -78,7 +78,7 @@ def test_refine_result_repr_and_summary(refined):
         assert lo == pytest.approx(est - 1.96 * sd, rel=2e-3, abs=1e-3 * sd)
         assert hi == pytest.approx(est + 1.96 * sd, rel=2e-3, abs=1e-3 * sd)
     assert "result: success" in summary
-    assert re.search(r"noise std \(equation error\)\s*: 0\.0(19|2)", summary)
+    assert re.search(r"noise std \(criterion's residuals\)\s*: 0\.0(19|2)", summary)
     html = refined._repr_html_()
     assert html.startswith("<div>") and "95% interval" in html and "<table>" in html
 
