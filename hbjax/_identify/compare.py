@@ -71,6 +71,11 @@ def predict_ahead(model: AbstractModel, v, y, horizon: int, *, u0=0.0, y0=None):
     return _ahead(model, v, y, horizon, jnp.asarray(u0, dtype), y0)
 
 
+def _fit_text(fit: float) -> str:
+    """A fit percentage as the summary prints it (a diverged model's in powers of ten)."""
+    return f"{fit:.2f}" if abs(fit) < 1e6 else f"{fit:.3g}"
+
+
 class Comparison(eqx.Module):
     """What :func:`compare` measured, one row per model.
 
@@ -132,11 +137,11 @@ class Comparison(eqx.Module):
                                                  self.initial_states)):
             u0 = "0" if s is None else f"{float(s.u0):.4g}"
             y0 = "zeros" if s is None else np.array2string(np.asarray(s.y0), precision=4)
-            fit = f"{f:.2f}" if abs(f) < 1e6 else f"{f:.3g}"
+            fit = _fit_text(f)
             lines.append(f"{name:<16}{fit:>10}{r:>12.4g}{self._spread(k):>13}{u0:>12}  {y0}")
         lines.append("free-run sd: median over the samples of the free run's standard deviation "
                      "its estimate's covariance implies (results of refine / fit only)")
-        rows = [[str(n), f"{f:.2f}" if abs(f) < 1e6 else f"{f:.3g}", display.format_number(r),
+        rows = [[str(n), _fit_text(f), display.format_number(r),
                  self._spread(k),
                  "0" if s is None else display.format_array(s.u0),
                  "zeros" if s is None else display.format_array(s.y0)]
@@ -177,7 +182,8 @@ def extension_state(model: AbstractModel, v, y):
     the first ``n = max(na, nb)`` samples, whose responses ``H`` (:func:`hbjax._identify.
     stable.start_response`) are fitted to the free-run error by least squares:
     ``y_hat = simulate(model, v, u0=u0) + H c``; of the base's play state and the
-    convention's ``u0 = 0``, the one with the smaller squared error is kept. Exact for effects acting on the input or
+    convention's ``u0 = 0``, the one with the smaller squared error is kept. Exact for
+    effects acting on the input or
     added to the linear block's output; a first-order account for effects inside the
     recursion. The returned :class:`InitialState` holds the base's output lags that give
     the same equation error (least squares when ``nb > na``)."""

@@ -13,6 +13,7 @@ from jaxtyping import Array, Float
 from ..._core.model import Hammerstein
 from ..effect_base import EffectConstraint, neutral_ints
 from ..explain import rounded
+from ..kernel import drift
 from ..kernel_effect import AbstractKernelEffect, put
 from ..residual_tests import periodogram, spectral_peaks
 
@@ -80,12 +81,10 @@ class OffsetDrift(AbstractKernelEffect):
                                            ("drift_decay", 1.0 / ctx.n)])
 
     def level(self, n):
-        """The drift ``offset + rate (1 - exp(-decay t)) / decay`` at ``t = 0 .. n - 1``."""
-        t = np.arange(n, dtype=float)
-        k, rate = float(self.decay), float(self.rate)
-        x = k * t
-        shape = t if abs(k) * n < 1e-9 else -np.expm1(-np.maximum(x, -30.0)) / k
-        return float(self.offset) + rate * shape
+        """The drift ``offset + rate (1 - exp(-decay t)) / decay`` at ``t = 0 .. n - 1``
+        (the kernel's :func:`hbjax._diagnose.kernel.drift`, its one home)."""
+        lay, theta = self.parts()[:2]
+        return np.asarray(drift(lay, theta, jnp.arange(n, dtype=theta.dtype))[0])
 
     def describe(self, ctx, info):
         n = len(info["y"])
