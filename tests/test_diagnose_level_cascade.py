@@ -116,3 +116,40 @@ def test_model_file_checked_on_load(tmp_path):
         bad.write_text(json.dumps(doc))
         with pytest.raises(ValueError, match=message):
             hbjax.load_model(bad)
+
+
+def test_time_constants_are_the_inverse_slope_of_the_outflow():
+    """Each store's local time constant at a level is the inverse slope of its outflow
+    there (a small step in the level decays by that factor per sample), computed here by a
+    finite difference of Torricelli's law written out, at the 10th and 90th percentiles of
+    the recorded level (measured store) and of the upstream level simulated by a NumPy
+    loop of the upstream equation (with the overflow cap)."""
+    import jax.numpy as jnp
+
+    from hbjax._diagnose.level_cascade import LevelCascade, time_constants
+
+    base = concealed_case(np.random.default_rng(0), None, n=1000)["nominal_model"]
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        g, c, k1, o1 = rng.uniform(0.05, 0.2), 0.0, rng.uniform(0.02, 0.2), rng.uniform(-3, -1)
+        k3, o2, h = rng.uniform(0.02, 0.5), rng.uniform(-3.0, -1.5), rng.uniform(0.0, 1.0)
+        center, scale = rng.uniform(-2, 2), rng.uniform(0.2, 3.0)
+        params = jnp.asarray([g, c, k1, o1, 0.05, k3, o2, h, 0.5])
+        model = LevelCascade(base, params, jnp.asarray([0.5, 0.0]), 1.0, center, scale)
+        y = center + scale * rng.uniform(-1.0, 1.0, 4000)
+        v = 1.5 + 0.5 * np.sin(np.arange(4000) / rng.uniform(20, 80))  # keeps it filled
+        x1, upstream = 0.5, []
+        for w in v:
+            upstream.append(x1)
+            x1 = min(x1 + g * w + c - k1 * np.sqrt(max(x1 - o1, 0.0) + 1e-12), h)
+        taus = time_constants(model, v, y)
+
+        def inverse_slope(x, k, outlet, dx=1e-6):
+            return 2 * dx / (k * (np.sqrt(x + dx - outlet) - np.sqrt(x - dx - outlet)))
+
+        for levels, k, outlet, got in (((y - center) / scale, k3, o2, taus["measured"]),
+                                       (np.asarray(upstream), k1, o1, taus["upstream"])):
+            for q, t in zip(np.quantile(levels, [0.1, 0.9]), got):
+                assert t == pytest.approx(inverse_slope(q, k, outlet), rel=1e-5)
+            # deeper levels drain slower (Torricelli): the time constant grows with the level
+            assert got[1] >= got[0]
