@@ -315,6 +315,29 @@ def test_missing_input_files_are_held_to_their_fields(tmp_path, field, value, ma
     assert hbjax.load_model(tmp_path / "mi.json").channel_names == ("w",)
 
 
+def test_missing_input_model_runs_only_on_its_record():
+    """The channels of ``missing_input`` were recorded with one record: the model runs on
+    it or a prefix of it (the prefix's output equals the record's first samples), and a
+    longer input is refused naming `v`, by simulate, predict and compare, rather than
+    holding the last recorded value."""
+    from hbjax._diagnose.channels import MissingInput
+
+    n = 40
+    rng = np.random.default_rng(3)
+    model = MissingInput(M, rng.standard_normal((n, 1)), np.zeros(1), np.ones(1),
+                         0.1 * np.ones((1, 4)), np.zeros(1), np.asarray(0.0), np.asarray(0.0),
+                         ("w",))
+    assert model.record_length() == n and M.record_length() is None
+    v = np.sin(np.arange(n + 5) / 3.0)
+    full = np.asarray(hbjax.simulate(model, v[:n]))
+    np.testing.assert_allclose(np.asarray(hbjax.simulate(model, v[:25])), full[:25], atol=1e-12)
+    y = full + 0.01 * rng.standard_normal(n)
+    for call in (lambda: hbjax.simulate(model, v), lambda: hbjax.predict(model, v, np.r_[y, y[:5]]),
+                 lambda: hbjax.compare(model, v, np.r_[y, y[:5]], initial_state="zero")):
+        with pytest.raises(ValueError, match=r"`v` has 45 samples.*recorded with 40"):
+            call()
+
+
 def test_polynomial_degree_is_capped_and_evaluated_exactly():
     with pytest.raises(ValueError, match="at most m = 64"):
         hbjax.Backlash(np.ones(65), np.ones(65))

@@ -31,6 +31,12 @@ class AbstractModel(eqx.Module):
     ) -> Float[Array, " time"]:
         """One-step-ahead prediction of ``y`` from past ``y`` and ``v``."""
 
+    def record_length(self) -> int | None:
+        """The most samples the model can run: ``None`` (any length) unless it carries
+        signals recorded with one record (e.g. the channels of ``missing_input``), which
+        it can run on that record or a prefix of it only."""
+        return None
+
     def __repr__(self) -> str:
         return display.pformat(self)
 

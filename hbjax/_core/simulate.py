@@ -119,6 +119,12 @@ def _causal(fn, model, records, *rest, **kwargs):
     """``fn(model, *records, *rest)``; an eager call runs on records padded to their
     length's bucket (``buckets.py``: one compiled program for many lengths) and returns the
     first ``N`` samples, which the padding cannot change (the recursions are causal)."""
+    limit = model.record_length() if isinstance(model, AbstractModel) else None
+    if limit is not None and records[0].shape[0] > limit:
+        raise ValueError(
+            f"`v` has {records[0].shape[0]} samples, but the model carries signals recorded "
+            f"with {limit} samples ({type(model).__name__}): it runs on that record or a "
+            "prefix of it only.")
     if not should_bucket(model, records, rest):
         return fn(model, *records, *rest, **kwargs)
     n = records[0].shape[0]

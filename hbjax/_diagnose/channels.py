@@ -79,7 +79,7 @@ class MissingInput(AbstractModel):
     with ``y_lin`` the nominal HB-Hammerstein output (eq. (10)), ``A`` its denominator and
     ``w_j = (channel_j - center_j) / scale_j`` the recorded channels (``signals``, one
     column per channel, the record's length). It runs on the record the channels were
-    recorded with, or a prefix of it (a longer input sees the last recorded values)."""
+    recorded with, or a prefix of it (:meth:`record_length`; a longer input is refused)."""
 
     base: Hammerstein
     signals: Float[Array, "time channels"]
@@ -119,10 +119,13 @@ class MissingInput(AbstractModel):
         for field, rule in rules.items():
             rule.check(f"MissingInput.{field}", getattr(self, field), self.base)
 
+    def record_length(self) -> int:
+        return int(self.signals.shape[0])
+
     def _extension(self, y_lin):
         T, n = y_lin.shape[0], self.signals.shape[0]
-        # a prefix of the record sees the channels' prefix; samples past the record (the
-        # simulator's length padding, cut off afterwards) hold the last recorded value
+        # a prefix of the record sees the channels' prefix; samples past the record (only
+        # the simulator's length padding, cut off afterwards) hold the last recorded value
         sig = self.signals[:T] if T <= n else jnp.concatenate(
             [self.signals, jnp.repeat(self.signals[-1:], T - n, axis=0)])
         w = (sig - self.center) / self.scale

@@ -156,8 +156,25 @@ def save_model(path, model: AbstractModel, *, overwrite: bool = False) -> pathli
     return atomic_write(path, model_to_json(model), overwrite=overwrite)
 
 
+def _checked_classes(classes) -> tuple:
+    """``classes`` as a tuple of ``eqx.Module`` subclasses, or a ``TypeError`` naming it."""
+    if isinstance(classes, type):
+        classes = (classes,)
+    try:
+        out = tuple(classes)
+    except TypeError:
+        raise TypeError("`classes` must be a tuple of eqx.Module subclasses, got "
+                        f"{type(classes).__name__}.") from None
+    bad = [c for c in out if not (isinstance(c, type) and issubclass(c, eqx.Module))]
+    if bad:
+        raise TypeError("`classes` must hold eqx.Module subclasses only, got "
+                        f"{bad[0]!r} ({type(bad[0]).__name__}).")
+    return out
+
+
 def model_from_json(text: str, *, classes=(), source: str = "<string>") -> AbstractModel:
     """Rebuild a model from model-file text; raises :class:`ModelFileError` on any problem."""
+    classes = _checked_classes(classes)
     try:
         return _model_from_json(text, classes, source)
     except RecursionError:
@@ -185,7 +202,7 @@ def _model_from_json(text, classes, source):
     if not isinstance(doc.get("model"), dict):
         raise ModelFileError(f"{source}: the `model` entry is missing.")
     try:
-        model = _decode_module(doc["model"], tuple(classes), "model")
+        model = _decode_module(doc["model"], classes, "model")
     except ModelFileError as exc:
         raise ModelFileError(f"{source}: {exc}") from None
     if not isinstance(model, AbstractModel):
@@ -214,6 +231,7 @@ def load_model(path, *, classes=()) -> AbstractModel:
     file and the offending entry if the file is corrupted, foreign, from a newer format, or
     names an unknown class. Nothing is returned unless the whole model was rebuilt and checked.
     """
+    classes = _checked_classes(classes)  # before the file is opened
     p = check_readable(path, "model file")
     try:
         with open(p, "rb") as fh:
