@@ -128,6 +128,7 @@ LONGEST_FIRST = (
     "test_refine.py", "test_diagnose.py", "test_notebooks.py", "test_diagnose_independent.py",
     "test_diagnose_level_cascade.py", "test_robustness.py", "test_validation_tools.py",
     "test_diagnose_physics.py", "test_refine_buckets.py", "test_identify_generalises.py",
+    "test_diagnose_output_map.py",
     "test_output_unit.py", "test_giri_band.py", "test_fit_gauge.py", "test_fit.py",
     "test_architecture.py", "test_determinism.py", "test_adequacy.py",
 )
