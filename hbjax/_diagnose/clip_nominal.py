@@ -218,6 +218,38 @@ def clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats, names
 N_FOLDS = 5
 
 
+def fold_edges(T, b0):
+    """The edges of ``N_FOLDS`` contiguous blocks of a record of ``T`` samples from the
+    structural burn-in ``b0`` (the cross-validations of effects fitted on the nominal
+    model: this clip, the actuator limit, the sensor curvature)."""
+    return np.linspace(b0, T, N_FOLDS + 1).astype(int)
+
+
+def other_blocks(T, b0, start, end):
+    """The samples from ``b0`` outside the block ``[start, end)``: what a fold's effect is
+    fitted on."""
+    others = np.ones(T, bool)
+    others[:b0] = False
+    others[start:end] = False
+    return others
+
+
+def held_base_refusal(validation, dm_refit, dm_const, mechanism):
+    """Why an effect fitted on the nominal model (base held) and validated by folds is not
+    reported, or ``None``: the folds did not confirm it; the refit simulates the held-out
+    part significantly better (Diebold-Mariano z > DM_Z: a base that must move is not
+    explained by ``mechanism`` alone); or the nominal model does not simulate it
+    significantly better than a constant output."""
+    if not validation["accepted"]:
+        return "not confirmed by the cross-validation over folds"
+    if dm_refit is not None and dm_refit > DM_Z:
+        return ("the refit simulates the held-out part significantly better (Diebold-Mariano "
+                f"z {dm_refit:.2f}): the base is off, not only {mechanism}")
+    if not dm_const > DM_Z:
+        return "held-out free run not significantly better than a constant output"
+    return None
+
+
 def _folds(y, y_nom, fit_levels, sig, b0):
     """Cross-validation of the clip over ``N_FOLDS`` contiguous blocks of the record (from
     the structural burn-in ``b0``): each block's output is the nominal free run clipped at
@@ -229,14 +261,11 @@ def _folds(y, y_nom, fit_levels, sig, b0):
     blocks, so the clip is seen in separate parts of the record. The nominal model is the
     user's, not fitted here: only the clip levels are estimated, fold by fold."""
     T = len(y)
-    edges = np.linspace(b0, T, N_FOLDS + 1).astype(int)
+    edges = fold_edges(T, b0)
     y_cv = np.array(y_nom, dtype=float)
     fold_levels = []
     for a, b in itertools.pairwise(edges):
-        others = np.ones(T, bool)
-        others[:b0] = False
-        others[a:b] = False
-        lv = fit_levels(others)
+        lv = fit_levels(other_blocks(T, b0, a, b))
         fold_levels.append({k: (float(x) if np.isfinite(x) else None) for k, x in lv.items()})
         y_cv[a:b] = np.clip(y_nom[a:b], lv["lower"], lv["upper"])
     tol = 1e-6 * (float(np.ptp(y)) or 1.0)

@@ -24,8 +24,9 @@ import numpy as np
 from .._misc import jsonable as _jsonable
 from . import effects as fx
 from . import residual_tests as rt
-from .clip_nominal import MIN_CHANGED, N_FOLDS, _best_level, _significant
-from .decide import BIC_MARGIN, DM_Z, over_constant
+from .clip_nominal import (MIN_CHANGED, N_FOLDS, _best_level, _significant, fold_edges,
+                           held_base_refusal, other_blocks)
+from .decide import BIC_MARGIN, over_constant
 from .effect_base import ANCHORED
 from .kernel import MAX_DELAY
 from .result import Finding
@@ -145,14 +146,7 @@ def input_clip_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
     fit_refit, dm_refit = float(stats[ref_i]["fit_sim"]), stats[ref_i].get("dm_z", 0.0)
     dm_const = over_constant(y, n_fit, burn, y[n_fit:] - np.asarray(ysim_all[0])[n_fit:])
     row["dm_z_over_constant"] = dm_const
-    why = None
-    if not validation["accepted"]:
-        why = "not confirmed by the cross-validation over folds"
-    elif dm_refit > DM_Z:
-        why = ("the refit simulates the held-out part significantly better (Diebold-Mariano "
-               f"z {dm_refit:.2f}): the base is off, not only an actuator limit")
-    elif not dm_const > DM_Z:
-        why = "held-out free run not significantly better than a constant output"
+    why = held_base_refusal(validation, dm_refit, dm_const, "an actuator limit")
     row["decision"] = why or "reported"
     if why is not None:
         return row, None
@@ -183,14 +177,11 @@ def _folds(y, y_nom, u, resid, free_run, b0):
     through the linear block; only the block's own samples are kept). See
     :func:`input_clip_on_nominal` for the acceptance rule."""
     T = len(y)
-    edges = np.linspace(b0, T, N_FOLDS + 1).astype(int)
+    edges = fold_edges(T, b0)
     y_cv = np.array(y_nom, dtype=float)
     fold_levels, acting = [], []
     for lo_edge, hi_edge in itertools.pairwise(edges):
-        others = np.ones(T, bool)
-        others[:b0] = False
-        others[lo_edge:hi_edge] = False
-        lv = _levels(resid, u, others)
+        lv = _levels(resid, u, other_blocks(T, b0, lo_edge, hi_edge))
         fold_levels.append({s: (float(x) if np.isfinite(x) else None) for s, x in lv.items()})
         y_cv[lo_edge:hi_edge] = free_run(lv["lower"], lv["upper"])[lo_edge:hi_edge]
         clipped = np.clip(u[lo_edge:hi_edge], lv["lower"], lv["upper"])

@@ -25,7 +25,7 @@ import numpy as np
 from .._misc import jsonable as _jsonable
 from . import effects as fx
 from . import residual_tests as rt
-from .clip_nominal import N_FOLDS
+from .clip_nominal import N_FOLDS, fold_edges, held_base_refusal, other_blocks
 from .decide import ANCHOR_ALPHA, BIC_MARGIN, DM_Z, over_constant
 from .effect_base import ANCHORED
 from .kernel import MAX_DELAY
@@ -116,14 +116,7 @@ def output_map_on_nominal(ctx, model, y, v, n_fit, burn, ysim_all, u_all, stats,
     fit_refit, dm_refit = float(stats[ref_i]["fit_sim"]), stats[ref_i].get("dm_z", 0.0)
     dm_const = over_constant(y, n_fit, burn, y[n_fit:] - y_nom[n_fit:])
     row["dm_z_over_constant"] = dm_const
-    why = None
-    if not validation["accepted"]:
-        why = "not confirmed by the cross-validation over folds"
-    elif dm_refit is not None and dm_refit > DM_Z:
-        why = ("the refit simulates the held-out part significantly better (Diebold-Mariano "
-               f"z {dm_refit:.2f}): the base is off, not only the sensor")
-    elif not dm_const > DM_Z:
-        why = "held-out free run not significantly better than a constant output"
+    why = held_base_refusal(validation, dm_refit, dm_const, "a sensor curvature")
     row["decision"] = why or "reported"
     if why is not None:
         return row, None
@@ -150,14 +143,11 @@ def _folds(y, y_nom, scale, b0):
     ``b0``: each block's free run mapped by the curvature fitted on the other blocks. See
     :func:`output_map_on_nominal` for the acceptance rule."""
     T = len(y)
-    edges = np.linspace(b0, T, N_FOLDS + 1).astype(int)
+    edges = fold_edges(T, b0)
     y_cv = np.array(y_nom, dtype=float)
     fold_maps = []
     for lo_edge, hi_edge in itertools.pairwise(edges):
-        others = np.ones(T, bool)
-        others[:b0] = False
-        others[lo_edge:hi_edge] = False
-        center, k2, k3 = _fit_map(y, y_nom, scale, others)
+        center, k2, k3 = _fit_map(y, y_nom, scale, other_blocks(T, b0, lo_edge, hi_edge))
         fold_maps.append({"center": center, "k2": k2, "k3": k3})
         y_cv[lo_edge:hi_edge] = _mapped(y_nom[lo_edge:hi_edge], scale, center, k2, k3)
     r_nom, r_cv = (y - y_nom)[b0:], (y - y_cv)[b0:]
