@@ -23,9 +23,10 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float
 
+from .._core.buckets import bucket_length, padded
 from .._core.initial import InitialState
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
-from .._core.simulate import simulate
+from .._core.simulate import play, simulate
 from .._misc import is_traced
 from .._misc import jsonable as _jsonable
 from . import residual_tests as rt
@@ -405,14 +406,23 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
         metric="simulation", fit_before=fit_nom, fit_after=fit_c, evidence=_jsonable(evidence))
 
 
-def _upstream_levels(ext, v):
-    """The upstream store's level over the record (fit units; :func:`_levels`)."""
-    w = ext._feed(jnp.asarray(v), 0.0)
-
+@jax.jit
+def _upstream_run(p, x0, w):
     def step(x1, w_t):
-        return _upper_step(ext.params, x1, w_t)[0], x1
+        return _upper_step(p, x1, w_t)[0], x1
 
-    return np.asarray(jax.lax.scan(step, ext.levels0[0], w)[1])
+    return jax.lax.scan(step, x0, w)[1]
+
+
+def _upstream_levels(ext, v):
+    """The upstream store's level over the record (fit units; :func:`_levels`), run on
+    the record padded to its length's bucket (one compiled program for many lengths; the
+    recursion is causal, so the padding cannot change the first samples)."""
+    v = np.asarray(v, float)
+    w = (v if ext.feed == "input" else np.asarray(play(ext.base.backlash, v))) / ext.w_scale
+    n = len(w)
+    x1 = _upstream_run(ext.params, ext.levels0[0], padded(w, bucket_length(n)))
+    return np.asarray(x1)[:n]
 
 
 def time_constants(ext, v, y):
