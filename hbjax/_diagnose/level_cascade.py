@@ -295,7 +295,8 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
     part, a significantly smaller free-run error than the refit's and a constant output's
     (Diebold-Mariano z > DM_Z against each), and a higher fit than the nominal model's;
     and a law that depends on the level where the record is: a store's time constant
-    changes by MIN_TIME_CONSTANT_RATIO or more over its levels (:func:`time_constants`). Against the nominal model the gain need not be significant: a nominal model fitted on
+    changes by MIN_TIME_CONSTANT_RATIO or more over its levels (:func:`time_constants`).
+    Against the nominal model the gain need not be significant: a nominal model fitted on
     the record being diagnosed (the plain path) saw the held-out part, which biases any test
     there toward it, while the refit, like this model, saw only the fitting segment. Its
     BIC is on the output error (``evidence["bic_criterion"]``), so under the prediction
