@@ -512,6 +512,7 @@ bad(FILES, "load_model", ModelFileError, "not an hbjax model file", lambda t: hb
 bad(FILES, "load_model", ModelFileError, "`model.backlash.c1` must hold 3 values", lambda t: hbjax.load_model(text_file(t, "m.json", re.sub(r'("c1": \{"array": \[)[^,]*,', r"\1", model_file(t).read_text()))))
 bad(FILES, "load_model", TypeError, "`classes` must be a tuple of eqx.Module subclasses, got int", lambda t: hbjax.load_model(model_file(t), classes=5))
 bad(FILES, "load_model", TypeError, "`classes` must hold eqx.Module subclasses only, got 'Gain'", lambda t: hbjax.load_model(model_file(t), classes=["Gain"]))
+bad(FILES, "load_model", TypeError, "not their names\\), got the string 'Gain'", lambda t: hbjax.load_model(model_file(t), classes="Gain"))
 bad(FILES, "load_model", ModelFileError, "format_version 99 is not supported", lambda t: hbjax.load_model(text_file(t, "m.json", model_file(t).read_text().replace('"format_version": 1', '"format_version": 99'))))
 bad(FILES, "load_model", ModelFileError, "non-finite coefficients", lambda t: hbjax.load_model(text_file(t, "m.json", re.sub(r'("a": \{"array": \[)[^,]*', r'\1{"float": "nan"}', model_file(t).read_text()))))
 bad(FILES, "save_model", FileExistsError, "already exists; pass overwrite=True", lambda t: hbjax.save_model(model_file(t), M))

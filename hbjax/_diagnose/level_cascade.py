@@ -388,7 +388,7 @@ def level_cascade_on_nominal(model, y, v, n_fit, burn, ysim_all, u_all, stats, n
     row["decision"] = why or "reported"
     if why is not None:
         return row, None
-    text = _describe(ext, v, y)
+    text = _describe(ext, v, y, taus)
     evidence = {
         "variant": "two levels in series with Torricelli outflows and an upstream overflow, "
                    "fitted by output error (the nominal linear block replaced)",
@@ -443,15 +443,15 @@ def time_constants(ext, v, y):
             "upstream": tau(_upstream_levels(ext, v), p[2], p[3])}
 
 
-def _describe(ext, v, y):
-    """The physics sentence and parameter table from the fitted values."""
+def _describe(ext, v, y, taus):
+    """The physics sentence and parameter table from the fitted values and the stores'
+    time constants (:func:`time_constants`, computed once by the decision)."""
     g, _, k1, _, k2, k3, o2, _, r = (float(x) for x in ext.params)
     w = np.asarray(ext._feed(jnp.asarray(v), 0.0))
     _, spill = _levels(ext.params, ext.levels0, jnp.asarray(w), jnp.zeros(len(w)))
     overflowing = int(np.sum(np.asarray(spill) > 0))
     outlet = ext.y_center + ext.y_scale * o2
     lo, hi = (float(q) for q in np.quantile(y, [0.1, 0.9]))
-    taus = time_constants(ext, v, y)
     tau = taus["measured"]
     feed = ("the recorded input" if ext.feed == "input" else
             "the nominal model's internal signal u")

@@ -160,6 +160,9 @@ def _checked_classes(classes) -> tuple:
     """``classes`` as a tuple of ``eqx.Module`` subclasses, or a ``TypeError`` naming it."""
     if isinstance(classes, type):
         classes = (classes,)
+    if isinstance(classes, (str, bytes)):  # iterable, but its characters are not classes
+        raise TypeError("`classes` must be a tuple of eqx.Module subclasses (the classes "
+                        f"themselves, not their names), got the string {classes!r}.")
     try:
         out = tuple(classes)
     except TypeError:
