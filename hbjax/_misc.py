@@ -90,6 +90,8 @@ def check_magnitude(x, name: str, limit: float = MAX_MAGNITUDE, *, output: bool 
     if is_traced(x):
         return x
     peak = float(np.max(np.abs(np.asarray(x)))) if np.size(x) else 0.0
+    if not np.isfinite(peak):  # NaN or inf is no magnitude: say where it is
+        check_finite(x, name)
     if peak > limit:
         raise ValueError(
             f"`{name}` reaches a magnitude of {peak:.3g}; the estimators form sums of "

@@ -262,6 +262,10 @@ def test_identify_fit_on_ordinary_recordings(tmp_path, system):
     proc = run("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, *records, "--input", "v",
                "--output", "y", "--starts", 8, "--out", "fit.json", cwd=tmp_path)
     assert "2 recording(s), 600 samples" in proc.stdout
+    # Standard errors print with significant digits: a small one is never shown as 0.
+    line = next(x for x in proc.stdout.splitlines() if "standard errors" in x)
+    shown = np.array([float(x) for x in line.split("=", 1)[1].strip(" []").split(",")])
+    assert shown.size == 10 and np.all(shown > 0)
     model = hbjax.load_model(tmp_path / "fit.json")
     np.testing.assert_allclose(hbjax.flatten_params(model),
                                hbjax.flatten_params(hbjax.normalise_static_gain(system)), atol=0.05)

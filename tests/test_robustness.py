@@ -613,6 +613,14 @@ bad(ORDER, "identify_nominal", TypeError, "`m` must be an integer, got '3'", lam
 bad(WRONG_TYPE, "identify_nominal", TypeError, "`start` must be an hbjax.Hammerstein, got str", lambda t: hbjax.identify_nominal(V_D, Y_D, start="x"))
 bad(OPTION, "identify_nominal", ValueError, "`na`=1 differs from the `start` model's na = 2", lambda t: hbjax.identify_nominal(V_D, Y_D, na=1, start=M))
 bad(ORDER, "fit", ValueError, "`m` must be an integer >= 2 to identify a model, got 1", lambda t: hbjax.fit(REC, na=2, nb=2, m=1, key=jax.random.key(0)))
+bad(ORDER, "refine", ValueError, "`model.backlash.m` must be an integer >= 2 to identify a model, got 1", lambda t: hbjax.refine(hbjax.Hammerstein(hbjax.Backlash([-1.0], [1.0]), hbjax.ARX([0.5], [1.0])), REC))
+bad(ORDER, "GiriDesign", ValueError, "`m` must be an integer >= 2 for the paper's design, got 1", lambda t: hbjax.GiriDesign(2, 1, 4.0))
+bad(UNSTABLE_A, "refine", ValueError, "`model` has an unstable A \\(largest pole modulus 1.3.*simulation criterion cannot start from it", lambda t: hbjax.refine(hbjax.Hammerstein(MN.backlash, hbjax.ARX([-1.5, 0.2], MN.arx.b)), REC, h_m=H_M, criterion="simulation"))
+bad(OPTION, "fit", ValueError, "`min_sim_fit` must be a finite number \\(percent\\) below 100, got 200.0", lambda t: hbjax.fit(REC, min_sim_fit=200.0, **FIT))
+bad(NONFINITE, "resid", ValueError, "`y` contains NaN or inf \\(1 samples, first at index 299\\)", lambda t: hbjax.resid(M, V_R, np.r_[Y_R[:-1], np.inf]))
+bad(RANK, "simulate", ValueError, "`y0` must hold the na = 2 output lags .*got a scalar", lambda t: hbjax.simulate(M, V, y0=1.0))
+bad(WRONG_TYPE, "plot_resid", TypeError, "`result` must be an hbjax.ResidualAnalysis .*got Comparison", lambda t: hbjax.plot.plot_resid(hbjax.compare(M, V_R, Y_R)))
+bad(WRONG_TYPE, "compare", TypeError, "`names` must be a list of labels, one per model, got the string 'ab'", lambda t: hbjax.compare([M, M], V_R, Y_R, names="ab"))
 bad(ORDER, "select_structure", ValueError, "`m` must be an integer >= 2 to identify a model, got 1", lambda t: hbjax.select_structure(REC, na=2, nb=2, m=[1, 2], key=jax.random.key(0), progress=False))
 bad(RANGE, "Recording", TypeError, "`start` must be an integer sample index or None, got 2.5", lambda t: hbjax.Recording(V, Y).slice(2.5, 10))
 bad(HOSTILE, "load_model", ModelFileError, "\\.kind` must be 'jax' or 'numpy', got 'pickle'", lambda t: hbjax.load_model(text_file(t, "m.json", model_file(t).read_text().replace('"kind": "jax"', '"kind": "pickle"'))))
@@ -646,6 +654,7 @@ PROMOTED = [
     Promoted("refine", "float32 records", lambda: hbjax.refine(MN, (V_R.astype(np.float32), Y_R.astype(np.float32)), h_m=H_M).model, lambda: hbjax.refine(MN, (V_R.astype(np.float32).astype(float), Y_R.astype(np.float32).astype(float)), h_m=H_M).model),
     Promoted("crlb", "int noise_std and h_m", lambda: hbjax.crlb(hbjax.normalise(M, 4), REC, noise_std=1, h_m=4).covariance, lambda: hbjax.crlb(MN, REC, noise_std=1.0, h_m=4.0).covariance),
     Promoted("Recording", "int lists", lambda: hbjax.Recording([1, 2], [3, 4]).v, lambda: np.array([1.0, 2.0])),
+    Promoted("refine", "a pair of lists, and a list of such pairs", lambda: hbjax.refine(MN, [(list(V_R), list(Y_R)), (V_R.tolist(), Y_R.tolist())], h_m=H_M).model, lambda: hbjax.refine(MN, [(V_R, Y_R), (V_R, Y_R)], h_m=H_M).model),
 ]
 
 

@@ -17,6 +17,14 @@ def cmd_demo(args) -> int:
 SEED_LIMIT = 2**63  # JAX's keys and NumPy's generators take seeds in [0, 2**63)
 
 
+def _significant(x, digits: int) -> str:
+    """``[x0, x1, ...]`` with `digits` significant digits each: a small nonzero value (a
+    standard error of 4.7e-4) never prints as ``0.`` as a fixed number of decimals would."""
+    import numpy as np
+
+    return "[" + ", ".join(f"{float(e):.{digits}g}" for e in np.ravel(np.asarray(x))) + "]"
+
+
 def _column_key(key):
     """A ``--input``/``--output`` value: an int if it is one, else a header name."""
     if key is None:
@@ -165,7 +173,7 @@ def _describe_model(model, indent: str = "  ") -> str:
     from .._core.model import Hammerstein
 
     def fmt(x):
-        return np.array2string(np.asarray(x), precision=6, separator=", ")
+        return _significant(x, 6)
 
     if isinstance(model, Hammerstein):
         return (
@@ -357,7 +365,7 @@ def cmd_identify_fit(args) -> int:
           f"recording(s), {samples} samples; normalisation B(1) = 1:")
     print(_describe_model(result.model))
     std = np.asarray(result.std)
-    print(f"  standard errors (a, b, c1, c2) = {np.array2string(std, precision=3, separator=', ')}")
+    print(f"  standard errors (a, b, c1, c2) = {_significant(std, 3)}")
     print(f"  noise std = {float(result.noise_std):.4g}; {args.starts} starts, "
           f"{float(result.hit_rate):.0%} reached the best cost; {result.message}")
     fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(result.sim_fit)))

@@ -44,11 +44,16 @@ class ARX(eqx.Module):
         """Roots of ``z^na A(z^-1)``; assumption A3 asks them strictly inside the unit circle."""
         return jnp.roots(jnp.concatenate([jnp.ones(1), self.a]), strip_zeros=False)
 
+    def pole_radius(self) -> float:
+        """Largest pole modulus (0 without poles; concrete models only): assumption A3
+        asks it below 1."""
+        if self.na == 0:
+            return 0.0
+        return float(np.max(np.abs(np.roots(np.concatenate([[1.0], np.asarray(self.a, float)])))))
+
     def is_stable(self) -> bool:
         """Assumption A3 (concrete models only)."""
-        if self.na == 0:
-            return True
-        return bool(np.all(np.abs(np.roots(np.concatenate([[1.0], np.asarray(self.a)]))) < 1))
+        return self.pole_radius() < 1
 
     def static_gain_numerator(self):
         """``B(1)``, nonzero under assumption A5."""

@@ -52,13 +52,13 @@ def output_lags(model: AbstractModel, y0, dtype=None) -> jax.Array:
             f"`y0` needs an hbjax.Hammerstein model (its ARX orders), got {type(model).__name__}."
         )
     y0 = as_float_array(y0, "y0", dtype=dtype)
+    given = "a scalar" if y0.ndim == 0 else f"shape {tuple(y0.shape)}"
     if y0.ndim == 0:
         y0 = y0[None]
     na = model.arx.na
     if y0.shape != (na,):
         raise ValueError(
-            f"`y0` must hold the na = {na} output lags [y(-1), ..., y(-{na})], "
-            f"got shape {tuple(y0.shape)}."
+            f"`y0` must hold the na = {na} output lags [y(-1), ..., y(-{na})], got {given}."
         )
     return check_finite(y0, "y0")
 

@@ -11,7 +11,7 @@ from .params import gauge_factor
 
 class GiriDesign(eqx.Module):
     """The experiment design of the paper: linear order ``n``, branch size ``m``
-    (degree ``m-1``; at most 64, a backlash branch's cap) and the amplitude ``h_m`` of
+    (degree ``m-1``; at least 2, at most 64, a backlash branch's cap) and the amplitude ``h_m`` of
     assumption A4.
 
     ``h_m`` must exceed the zeros of both branches (A4) so that ``v = +h_m`` puts the
@@ -26,6 +26,12 @@ class GiriDesign(eqx.Module):
         self.n = positive_int(n, "n")
         self.m = positive_int(m, "m")
         # refused here, not by identify_giri once the experiments have been run
+        if self.m < 2:
+            raise ValueError(
+                f"`m` must be an integer >= 2 for the paper's design, got {self.m}: with "
+                "m = 1 both branches are constants, the backlash output never follows the "
+                "input and the staircase (eq. (32)) identifies nothing."
+            )
         if self.m > MAX_COEFFICIENTS:
             raise ValueError(
                 f"`m` must be at most {MAX_COEFFICIENTS} (a backlash branch's coefficient cap, "
@@ -75,8 +81,8 @@ class GiriDesign(eqx.Module):
             self._check_assumptions(model, name)
 
     def _check_assumptions(self, model, name: str) -> None:
-        a, b = np.asarray(model.arx.a), np.asarray(model.arx.b)
-        radius = np.max(np.abs(np.roots(np.concatenate([[1.0], a])))) if a.size else 0.0
+        b = np.asarray(model.arx.b)
+        radius = model.arx.pole_radius()
         if not radius < 1:
             raise ValueError(
                 f"`{name}` has an unstable A (largest pole modulus {radius:.4g}); "

@@ -269,6 +269,8 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
                     f"`initial_state='estimate'` needs hbjax.Hammerstein models or extensions "
                     f"of one (a `base` Hammerstein); `model[{k}]` is a "
                     f"{type(mdl).__name__}: pass initial_state='zero'.")
+    if isinstance(names, (str, bytes)):  # iterable, but each character would be a label
+        raise TypeError(f"`names` must be a list of labels, one per model, got the string {names!r}.")
     names = tuple(f"model {k}" for k in range(len(models))) if names is None else tuple(names)
     if len(names) != len(models):
         raise ValueError(f"`names` must have one entry per model ({len(models)}), "

@@ -13,8 +13,15 @@ from .._core.model import Hammerstein
 
 
 def _is_pair(x) -> bool:
+    """``(v, y)``: two signals, where a signal may itself be a list of numbers (a list
+    of records holds pairs, whose first item is no number)."""
     return (isinstance(x, (tuple, list)) and len(x) == 2
-            and not isinstance(x[0], (tuple, list)) and not _is_recording(x[0]))
+            and (not isinstance(x[0], (tuple, list)) or _is_number_list(x[0]))
+            and not _is_recording(x[0]))
+
+
+def _is_number_list(x) -> bool:
+    return len(x) > 0 and not isinstance(x[0], (str, bytes)) and np.ndim(x[0]) == 0
 
 
 def _is_recording(x) -> bool:
@@ -116,13 +123,13 @@ def total_samples(recordings) -> int:
     return sum(int(v.shape[0]) for v, _ in recordings)
 
 
-def check_branch_degree(m) -> int:
+def check_branch_degree(m, name: str = "m") -> int:
     """``m`` for an identification: at least 2, since ``m = 1`` makes both branches
     constants, whose play operator output never follows the input."""
-    m = positive_int(m, "m")
+    m = positive_int(m, name)
     if m < 2:
         raise ValueError(
-            f"`m` must be an integer >= 2 to identify a model, got {m}: with m = 1 both "
+            f"`{name}` must be an integer >= 2 to identify a model, got {m}: with m = 1 both "
             "branches are constants, the backlash output never follows the input and the "
             "input has no effect on the output.")
     return m

@@ -22,9 +22,10 @@ from .._core.precision import require_x64
 from .._misc import check_bool, is_real_scalar, is_traced, positive_float, positive_int
 from .._results import RESULTS, code, raise_if_failed
 from .adequacy import LEVEL
-from .criteria import PREDICTION, lower_is_p1, sample_count
+from .criteria import PREDICTION, SIMULATION, lower_is_p1, sample_count
 from .quality import SIM_FIT_FLOOR
-from .recordings import as_recordings, check_criterion, check_h_m, check_model, total_samples
+from .recordings import (as_recordings, check_branch_degree, check_criterion, check_h_m, check_model,
+                         total_samples)
 from .refine_band import best_of_core_start, labelled_from
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
@@ -162,12 +163,29 @@ def refine_batch(models: Hammerstein, inputs, outputs, *, criterion: str = "pred
 
 
 def check_floor(min_sim_fit):
-    """``min_sim_fit``: a finite real number (percent; may be negative) or a traced value."""
+    """``min_sim_fit``: a finite real number (percent; may be negative, below 100: no fit
+    reaches 100 % on noisy records) or a traced value."""
     if is_traced(min_sim_fit):
         return min_sim_fit
-    if not is_real_scalar(min_sim_fit) or not np.isfinite(min_sim_fit):
-        raise ValueError(f"`min_sim_fit` must be a finite number (percent), got {min_sim_fit!r}.")
+    if not is_real_scalar(min_sim_fit) or not np.isfinite(min_sim_fit) or not min_sim_fit < 100:
+        raise ValueError("`min_sim_fit` must be a finite number (percent) below 100, got "
+                         f"{min_sim_fit!r}: a free-run fit is at most 100 %.")
     return float(min_sim_fit)
+
+
+def check_simulation_start(model, criterion) -> None:
+    """The simulation criterion's free run diverges from an unstable ``A`` (assumption
+    A3): its residuals overflow before the first step, so such a start is refused here
+    rather than by the linear solver's non-finite output."""
+    if criterion != SIMULATION or is_traced(model.arx.a):
+        return
+    radius = model.arx.pole_radius()
+    if not radius < 1.0:
+        raise ValueError(
+            f"`model` has an unstable A (largest pole modulus {radius:.6g}, assumption A3): "
+            "its free run diverges, so the simulation criterion cannot start from it. Start "
+            "from a stable model: refine with criterion='prediction' first, or hbjax.fit, "
+            "which searches within stable models.")
 
 
 def check_gauge(model, h_m):
@@ -332,7 +350,9 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     require_x64("refine")
     ensure_compilation_cache()
     check_model(model)
+    check_branch_degree(model.backlash.m, "model.backlash.m")
     check_criterion(criterion)
+    check_simulation_start(model, criterion)
     recs = as_recordings(recordings, model=model, host=True)
     h_m = check_h_m(h_m)
     max_steps = positive_int(max_steps, "max_steps")

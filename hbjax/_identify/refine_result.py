@@ -267,9 +267,7 @@ def describe(res) -> str:
         text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, per record: "
                  f"{fits}; floor {float(res.min_sim_fit):g} %)")
     elif res.result == RESULTS.unstable:
-        a = np.asarray(res.model.arx.a)
-        radius = float(np.max(np.abs(np.roots(np.concatenate([[1.0], a]))))) if a.size else 0.0
-        text += f" (largest pole modulus {radius:.6g})"
+        text += f" (largest pole modulus {res.model.arx.pole_radius():.6g})"
     return text
 
 

@@ -70,6 +70,9 @@ def plot_resid(result, v=None, y=None, *, axes=None, lags=25):
     """
     axes = checks.axes(axes, "axes", count=2)
     if not isinstance(result, ResidualAnalysis):
+        if not isinstance(result, AbstractModel):
+            raise TypeError("`result` must be an hbjax.ResidualAnalysis (from hbjax.resid) or "
+                            f"a model analysed on `v` and `y`, got {type(result).__name__}.")
         if v is None:
             raise TypeError("`v` is missing: pass a ResidualAnalysis, or a model with `v` and `y`.")
         result = resid(result, v, y, lags=lags)
