@@ -85,9 +85,6 @@ def _study_system(seed, index):
     return random_paper_system(sys_rng), sys_rng
 
 
-@pytest.mark.xfail(strict=True, reason="open: pooling the staircase reading of B*(1) into the A5 test "
-                   "accepted a valid system with a weak v2 record, but it also stopped refusing a "
-                   "system whose B*(1) is 0 (tests/test_robustness.py), so it was withdrawn")
 def test_weak_v2_record_does_not_refuse_a_valid_system():
     # na = 4, poles up to 0.78, noise 5 % of the output range: the v2 regression alone puts
     # B*(1) at 4-6 standard errors; testing it alone refused A5 (zero_static_gain) in 3 of
@@ -177,3 +174,24 @@ def test_closed_form_without_a_host_backend_says_how_to_enable_it(monkeypatch):
     ys = [hbjax.simulate(model, x) for x in v]
     with pytest.raises(RuntimeError, match="JAX_PLATFORMS=cuda,cpu"):
         hbjax.identify_giri(design, *ys)
+
+
+def test_a_static_gain_of_zero_is_refused_on_both_readings_together():
+    # The A5 test pools the v2 regression's and the staircase's readings of B*(1) with
+    # their joint covariance (the staircase's reading filters y3 with the estimated a).
+    # Without the covariance of a, a system whose B*(1) is 0 read a significant staircase
+    # gain from the transients the error of a leaves, and passed. Random paper-class
+    # systems with B(1) set to 0 (b minus its mean), two noise levels, T = 3000: the
+    # closed form must never succeed.
+    rng = np.random.default_rng(2024)
+    outcomes = []
+    for _ in range(6):
+        sys_rng = np.random.default_rng(rng.integers(2**63))
+        sys = random_paper_system(sys_rng, n=int(sys_rng.integers(2, 5)))
+        sys = dict(sys, b=sys["b"] - np.mean(sys["b"]))
+        for level in (0.01, 0.05):
+            design, records, _ = paper_records(sys, np.random.default_rng(sys_rng.integers(2**63)),
+                                               level, 3000)
+            giri = hbjax.identify_giri(design, *[y for _, y in records], throw=False)
+            outcomes.append(giri.result == hbjax.RESULTS.successful)
+    assert not any(outcomes), outcomes

@@ -93,3 +93,24 @@ def test_an_output_too_small_for_its_squares_is_refused_by_name():
     assert np.isfinite(float(np.ravel(hbjax.compare(small, v, y * 1e-120).fit)[0]))
     # an output that is exactly zero is not a unit problem (it is refused elsewhere, or fits)
     assert hbjax.refine(start, (v, np.zeros_like(y)), throw=False).result is not None
+
+
+@pytest.mark.parametrize("unit", [1e-7, 1e5])
+def test_diagnose_names_the_same_findings_in_any_output_unit(unit):
+    # The diagnosis's candidate solves take the residuals to the output's own unit: in
+    # micro-units every candidate "converged" after 2-4 steps before, and a second,
+    # spurious finding appeared beside the parameter mismatch.
+    true = hbjax.default_system()
+    nominal = hbjax.Hammerstein(true.backlash, hbjax.ARX([-1.1, 0.42], [1.0, 0.5]))
+    rng = np.random.default_rng(5)
+    v = np.repeat(rng.uniform(-8, 8, 150), 10)
+    y = np.asarray(hbjax.simulate(true, v, 0.1 * rng.standard_normal(v.size)))
+
+    def findings(k):
+        scaled = hbjax.Hammerstein(nominal.backlash, hbjax.ARX(nominal.arx.a, nominal.arx.b * k))
+        d = hbjax.diagnose(scaled, v, y * k, progress=False)
+        return [f.effect for f in d.findings], d.candidates["parameter_mismatch"]["fit_sim"]
+
+    (names, fit), (names_k, fit_k) = findings(1.0), findings(unit)
+    assert names == names_k == ["parameter_mismatch"]
+    assert fit_k == pytest.approx(fit, abs=0.01)

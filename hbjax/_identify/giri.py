@@ -155,7 +155,7 @@ def _least_squares(design, y2, offset):
     cov = noise_var * jnp.linalg.inv(gram_s) / jnp.outer(scale, scale) / rows
     b_cov = cov[n:, n:]
     b_sum_std = jnp.sqrt(jnp.maximum(jnp.sum(b_cov), 0.0))
-    return theta[:n], theta[n:], cond, jnp.sqrt(noise_var), b_sum_std, rows
+    return theta[:n], theta[n:], cond, jnp.sqrt(noise_var), b_sum_std, rows, cov
 
 
 def _transient_length(a, limit):
@@ -201,15 +201,29 @@ def _vandermonde(levels, values, h_m):
     return coef_scaled / h_m**powers, s_raw[0] / s_raw[-1], s[0] / s[-1]
 
 
-def _stage3(design, y3, a, b_star_sum):
+def _stage3(design, y3, a, b_star_sum, noise_std, cov):
     n, m = design.n, design.m
     t_inst, j_inst = design.estimation_instants(y3.shape[0])
-    z = y3
-    for i in range(n):
-        z = z + a[i] * lagged(y3, i + 1)
+    lags = jnp.stack([lagged(y3, i + 1) for i in range(n)]) if n else jnp.zeros((0, y3.shape[0]))
+    z = y3 + a @ lags
     onehot = (j_inst[None, :] == np.arange(2 * m)[:, None]).astype(float)
     counts = onehot.sum(axis=1)
-    z_bar = (jnp.asarray(onehot) @ z[t_inst]) / counts / b_star_sum
+    z_raw = (jnp.asarray(onehot) @ z[t_inst]) / counts
+    # The staircase's own reading of B*(1): its plateau means are B*(1) P*(level) + mean xi,
+    # and P2*(-h_m) - P1*(h_m) = 1 by the normalisation, so the mean at -h_m (j = m) minus
+    # the mean at +h_m (j = 0) estimates B*(1). Its error is the noise's,
+    # sigma^2 (1/c_m + 1/c_0), plus that of the estimated a it filters y3 with: the
+    # reading moves by g_i per unit of a_i, g_i the difference of the two levels' mean
+    # y3(t - i). That second part ties it to the v2 reading (the same a, b estimate):
+    # without it a system whose B*(1) is 0 read a significant staircase gain from the
+    # transients that the error of a leaves in z.
+    lag_means = (jnp.asarray(onehot) @ lags[:, t_inst].T) / counts[:, None]  # (2m, n)
+    g = lag_means[m] - lag_means[0]
+    cov_aa, cov_ab = cov[:n, :n], cov[:n, n:]
+    stair_gain = z_raw[m] - z_raw[0]
+    stair_var = noise_std**2 * (1.0 / counts[m] + 1.0 / counts[0]) + g @ cov_aa @ g
+    stair_cov_b = g @ jnp.sum(cov_ab, axis=1)
+    z_bar = z_raw / b_star_sum
     levels_np = np.asarray(design.staircase_levels(), float)
     raw_gap = z_bar[m] - z_bar[0]
     # The paper's plateau values held to the design's premise (a band at every applied
@@ -223,7 +237,56 @@ def _stage3(design, y3, a, b_star_sum):
     conds = jnp.stack([jnp.maximum(cond1_raw, cond2_raw), jnp.maximum(cond1, cond2)])
     # Level j = 0 is +h_m on P1 and level j = m is -h_m on P2: M1* and M2*.
     gap = z_bar[m] - z_bar[0]
-    return c1, c2, conds, gap, jnp.asarray(counts.astype(int)), band_shift
+    return (c1, c2, conds, gap, jnp.asarray(counts.astype(int)), band_shift,
+            (stair_gain, stair_var, stair_cov_b))
+
+
+def _readings(b_sum, b_sum_std, stair):
+    """The two readings of ``B*(1)``, the v2 regression's (26) and the staircase's gap
+    (:func:`_stage3`), and their joint covariance: ``(r, cov)`` with ``r`` shape ``(2,)``."""
+    stair_gain, stair_var, stair_cov_b = stair
+    r = jnp.stack([b_sum, stair_gain])
+    cov = jnp.array([[b_sum_std**2, stair_cov_b], [stair_cov_b, stair_var]])
+    return r, cov
+
+
+def _zero_static_gain(b_sum, b_sum_std, stair, b_star):
+    """Assumption A5 rejected: ``B*(1)`` is within 4 standard errors of 0 on the evidence of
+    both records that measure it, the v2 regression (26) and the staircase's gap, pooled
+    by generalised least squares with their joint covariance (:func:`_readings`).
+
+    The v2 record alone excites ``B*`` by one-sample pulses of height ``mu`` every ``4n``
+    samples; a slow ``A`` (``n = 4``, poles near 0.8) at an equation noise of 5 % of the
+    output range left ``B*(1)`` within 4 standard errors there in 11 of 2100 runs of the
+    independent generator (``benchmarks/identify_random.py --seed 5``), each of which
+    refined from the closed form to the optimum: a valid system must not fail A5 for the
+    weakness of one record. Where the pooled reading is not finite (a singular
+    covariance), the regression's test stands alone.
+    """
+    r, cov = _readings(b_sum, b_sum_std, stair)
+    tiny = jnp.finfo(b_sum.dtype).tiny ** 0.5
+    # the 2 x 2 inverse's weights, w = cov^-1 1 (up to the determinant, which cancels)
+    w = jnp.stack([cov[1, 1] - cov[0, 1], cov[0, 0] - cov[0, 1]])
+    total = jnp.sum(w)
+    det = cov[0, 0] * cov[1, 1] - cov[0, 1] ** 2
+    pooled = jnp.sum(w * r) / total
+    pooled_std = jnp.sqrt(jnp.maximum(det / total, 0.0))
+    usable = jnp.isfinite(pooled) & jnp.isfinite(pooled_std) & (det > tiny) & (total > tiny)
+    pooled = jnp.where(usable, pooled, b_sum)
+    pooled_std = jnp.where(usable, pooled_std, b_sum_std)
+    return jnp.abs(pooled) <= 4 * pooled_std + 1e-8 * jnp.sum(jnp.abs(b_star))
+
+
+def _gap_contradicted(gap, b_sum, b_sum_std, stair):
+    """The data contradict the design's premise ``P2*(-h_m) - P1*(h_m) = 1``: the measured
+    gap (the staircase's reading of ``B*(1)`` over the v2 regression's) is off by more than
+    :data:`_GAP_TOLERANCE` *and* the two readings differ by more than 4 standard errors of
+    their difference (joint covariance, :func:`_readings`). A gap off only as far as the
+    noise of two weak readings puts it is no contradiction."""
+    r, cov = _readings(b_sum, b_sum_std, stair)
+    spread = jnp.sqrt(jnp.maximum(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1], 0.0))
+    significant = ~(jnp.abs(r[1] - r[0]) <= 4 * spread)  # NaN counts as significant
+    return ~(jnp.abs(gap - 1.0) <= _GAP_TOLERANCE) & significant
 
 
 def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
@@ -238,12 +301,13 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
         transient = _transient_length(a0, half)
     transient = jnp.asarray(transient)
     offset, used = _offset(y1, transient)
-    a, b_star, cond_ls, noise_std, b_sum_std, rows = _least_squares(design, y2, offset)
+    a, b_star, cond_ls, noise_std, b_sum_std, rows, cov = _least_squares(design, y2, offset)
     b_sum = jnp.sum(b_star)
-    c1, c2, cond_v, gap, plateaus, band_shift = _stage3(design, y3, a, b_sum)
+    c1, c2, cond_v, gap, plateaus, band_shift, stair = _stage3(
+        design, y3, a, b_sum, noise_std, cov)
     model = Hammerstein(Backlash(c1, c2), ARX(a, b_star))
     params = jnp.concatenate([a, b_star, c1, c2])
-    zero_gain = jnp.abs(b_sum) <= 4 * b_sum_std + 1e-8 * jnp.sum(jnp.abs(b_star))
+    zero_gain = _zero_static_gain(b_sum, b_sum_std, stair, b_star)
     # The first failing check names the result (checks in the order the stages run).
     checks = [
         (~finite, RESULTS.nonfinite),
@@ -251,7 +315,7 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
         (~_is_stable(a), RESULTS.unstable_a),
         (zero_gain, RESULTS.zero_static_gain),
         (~jnp.all(jnp.isfinite(params)) | ~(cond_v[1] < _COND_LIMIT), RESULTS.singular_vandermonde),
-        (~(jnp.abs(gap - 1.0) <= _GAP_TOLERANCE), RESULTS.gap_not_crossed),
+        (_gap_contradicted(gap, b_sum, b_sum_std, stair), RESULTS.gap_not_crossed),
     ]
     code = RESULTS.successful
     for failed, item in reversed(checks):

@@ -9,7 +9,7 @@ import numpy as np
 from .._core import display
 from .._core.model import AbstractModel, Hammerstein
 from .._core.simulate import predict
-from .._diagnose.residual_tests import Z99, correlation
+from .._diagnose.residual_tests import Z99, coloured_input_statistic, correlation
 from .._misc import chi2_sf, positive_int
 from .compare import _record
 
@@ -85,16 +85,6 @@ class ResidualAnalysis(eqx.Module):
                 f"passed={self.passed})")
 
 
-def _independence(r, v, lags):
-    """``N r^T R_v^+ r``: under the null hypothesis ``r ~ N(0, R_v / N)``."""
-    rv = correlation(v, v, lags)
-    R = rv[np.abs(np.subtract.outer(np.arange(lags + 1), np.arange(lags + 1)))]
-    w, U = np.linalg.eigh(R)
-    keep = w > 1e-8 * w.max()
-    z = U[:, keep].T @ r
-    return float(v.shape[0] * np.sum(z**2 / w[keep])), int(np.sum(keep))
-
-
 def resid(model: AbstractModel, v, y=None, *, lags: int = 25) -> ResidualAnalysis:
     """Residual analysis as MATLAB's ``resid``: are the model's one-step prediction errors
     white and independent of past inputs?
@@ -128,7 +118,7 @@ def resid(model: AbstractModel, v, y=None, *, lags: int = 25) -> ResidualAnalysi
     r_e = correlation(e, e, lags)[1:]
     q = float(n * (n + 2) * np.sum(r_e**2 / (n - np.arange(1, lags + 1))))
     r_x = correlation(e, v_np, lags)
-    stat, dof = _independence(r_x, v_np, lags)
+    stat, dof = coloured_input_statistic(r_x, v_np, lags)
     mean, sd = float(np.mean(e)), float(np.std(e))
     # two-sided normal tail of the mean's z-score (white residuals: the tests above)
     p_mean = math.erfc(abs(mean) / (sd / math.sqrt(n)) / math.sqrt(2.0)) if sd > 0 else (
