@@ -353,6 +353,8 @@ bad(DTYPE, "monte_carlo", ValueError, "must return a float record.*dtype int", l
 bad(ORDER, "monte_carlo", ValueError, "`realisations` must be an integer >= 1, got -3", lambda t: mc(realisations=-3))
 bad(ORDER, "monte_carlo", TypeError, "`realisations` must be an integer, got 2.0", lambda t: mc(realisations=2.0))
 bad(ORDER, "monte_carlo", TypeError, "`lengths` must be an integer, got 100.5", lambda t: mc(lengths=[100.5]))
+bad(RANK, "monte_carlo", TypeError, "`lengths` must be a flat sequence of integers, got a nested one", lambda t: mc(lengths=[[300, 600]]))
+bad(WRONG_TYPE, "monte_carlo", TypeError, "`estimator` must return an object with `.model` .* got int", lambda t: mc(estimator=lambda design, y1, y2, y3: 3))
 bad(ORDER, "monte_carlo", ValueError, "`lengths` must be distinct", lambda t: mc(lengths=[40, 40]))
 bad(ORDER, "monte_carlo", ValueError, "`chunk_size` must be an integer >= 1, got 0", lambda t: mc(chunk_size=0))
 bad(SHORT, "monte_carlo", ValueError, "`lengths` \\[17\\] are shorter than one period of v3", lambda t: mc(lengths=[17]))
@@ -445,6 +447,7 @@ bad(NONFINITE, "diagnose", ValueError, "`y` contains NaN or inf \\(1 samples, fi
 bad(NONFINITE, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got nan", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=np.nan))
 bad(DTYPE, "diagnose", TypeError, "`v` must be real", lambda t: hbjax.diagnose(M, V_D + 0j, Y_D))
 bad(DTYPE, "diagnose", TypeError, "`channels\\['w'\\]` must be a numeric array, got str", lambda t: hbjax.diagnose(M, V_D, Y_D, channels={"w": "abc"}))
+bad(WRONG_TYPE, "diagnose", TypeError, "`channels` names must be strings, got 3", lambda t: hbjax.diagnose(M, V_D, Y_D, channels={3: np.ones(len(V_D))}))
 bad(ORDER, "diagnose", ValueError, "`holdout` must be a fraction in \\(0, 1\\), got 1.5", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=1.5))
 bad(ORDER, "diagnose", TypeError, "`holdout` must be a fraction in \\(0, 1\\), got True", lambda t: hbjax.diagnose(M, V_D, Y_D, holdout=True))
 bad(SHORT, "diagnose", ValueError, "record too short for `holdout`=0.3: 100 samples give 70 to fit", lambda t: hbjax.diagnose(M, V_D[:100], Y_D[:100]))
@@ -519,6 +522,7 @@ bad(FILES, "save_model", FileExistsError, "already exists; pass overwrite=True",
 bad(FILES, "save_model", FileNotFoundError, "folder .*nowhere' .* does not exist", lambda t: hbjax.save_model(t / "nowhere" / "m.json", M))
 bad(FILES, "save_model", IsADirectoryError, "is a directory", lambda t: hbjax.save_model(t, M, overwrite=True))
 bad(FILES, "load_recording", FileNotFoundError, "recording file .* does not exist", lambda t: hbjax.load_recording(t / "missing.csv"))
+bad(FILES, "load_recording", ValueError, "the header names 'v' for 2 columns \\(0, 1\\); give the input column by its 0-based index", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,v,y\n1,2,3\n4,5,6\n"), input="v", output="y"))
 bad(FILES, "load_recording", ValueError, "non-numeric cell 'x' at row 2, column 1 \\('y'\\)", lambda t: hbjax.load_recording(text_file(t, "r.csv", "v,y\n1,x\n")))
 bad(FILES, "load_recording", ValueError, "not a readable .npz archive", lambda t: hbjax.load_recording(text_file(t, "r.npz", "not a zip")))
 bad(FILES, "load_recording", ValueError, "not valid JSON", lambda t: hbjax.load_recording(text_file(t, "r.json", "{")))
@@ -566,6 +570,7 @@ bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--out .* would replace the input
 bad(CLI, "hbjax simulate", CLIError, "exit 1: .*--out: .* already exists; pass --force", lambda t: cli("simulate", "--model", model_file(t), "--input", text_file(t, "v.csv", "v\n1\n2\n"), "--out", text_file(t, "old.csv", "old")))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*unknown config keys \\['sigma'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"sigma": 1, "noise_std": 0.1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*missing config keys \\['realisations'\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [40]}'), "--out", t / "s.json", "--no-progress"))
+bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*`lengths` must be a non-empty list of integers, got \\[\\[300\\]\\]", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": 0.1, "lengths": [[300]], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
 bad(CLI, "hbjax montecarlo", CLIError, "exit 1: .*`noise_std` must be a finite number >= 0", lambda t: cli("montecarlo", "--config", text_file(t, "c.json", '{"noise_std": -1, "lengths": [40], "realisations": 2}'), "--out", t / "s.json", "--no-progress"))
 REC_CSV = "v,y\n" + "".join(f"{float(a)!r},{float(b)!r}\n" for a, b in zip(V_R, Y_R))
 bad(CLI, "hbjax identify fit", CLIError, "exit 1: hbjax identify fit: error: .*`--na` must be an integer >= 0, got -1", lambda t: cli("identify", "fit", "--na", -1, "--nb", 2, "--m", 3, text_file(t, "rec.csv", REC_CSV), "--out", t / "fit.json"))
@@ -677,6 +682,8 @@ TRACED = [
     Traced("simulate (u0)", lambda u0: hbjax.simulate(M, V, u0=u0), 0.5, np.nan, "`u0` contains NaN or inf"),
     Traced("simulate (model)", lambda c: hbjax.simulate(model_with(c1=c), V), np.asarray(BL.c1), with_nan(BL.c1, 1), "`model` has NaN or inf coefficients"),
     Traced("play (v)", lambda v: hbjax.play(BL, v), V, with_nan(V), "`v` contains NaN or inf"),
+    Traced("simulate (smoothing)", lambda s: hbjax.simulate(M, V, smoothing=s), 0.1, -1.0, "`smoothing` must be a finite number >= 0"),
+    Traced("play (smoothing)", lambda s: hbjax.play(BL, V, smoothing=s), 0.1, np.nan, "`smoothing` must be a finite number >= 0"),
     Traced("predict (y)", lambda y: hbjax.predict(M, V, y), Y, with_nan(Y, 59, -np.inf), "`y` contains NaN or inf"),
     Traced("predict (model)", lambda a: hbjax.predict(model_with(a=a), V, Y), np.asarray(ARX.a), with_nan(ARX.a, 0), "`model` has NaN or inf coefficients"),
     Traced("normalise (h_m <= 0)", lambda h: hbjax.normalise(M, h).arx.b, H_M, 0.0, "`h_m` must be > 0"),

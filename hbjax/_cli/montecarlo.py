@@ -55,8 +55,9 @@ def _study_config(path):
     else:
         raise ValueError(f"{path}: `design` must be \"n=2,m=3,h_m=4\" or an object with n, m, h_m.")
     lengths = config["lengths"]
-    if not isinstance(lengths, list) or not lengths:
-        raise ValueError(f"{path}: `lengths` must be a non-empty list of integers.")
+    if (not isinstance(lengths, list) or not lengths
+            or not all(isinstance(n, int) and not isinstance(n, bool) for n in lengths)):
+        raise ValueError(f"{path}: `lengths` must be a non-empty list of integers, got {lengths!r}.")
     for key in ("seed", "realisations"):
         value = config.get(key, 0)
         if isinstance(value, bool) or not isinstance(value, int):

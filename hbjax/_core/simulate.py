@@ -143,7 +143,10 @@ def _smoothing(smoothing):
     eps = as_float_array(smoothing, "smoothing")
     if eps.ndim != 0:
         raise ValueError(f"`smoothing` must be a scalar, got shape {tuple(eps.shape)}.")
-    if not is_traced(eps) and not (np.isfinite(float(eps)) and float(eps) >= 0):
+    if is_traced(eps):  # under jit: a runtime error naming it, as the other value checks
+        return eqx.error_if(eps, ~(jnp.isfinite(eps) & (eps >= 0)),
+                            "`smoothing` must be a finite number >= 0.")
+    if not (np.isfinite(float(eps)) and float(eps) >= 0):
         raise ValueError(f"`smoothing` must be a finite number >= 0, got {smoothing!r}.")
     return eps
 

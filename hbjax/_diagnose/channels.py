@@ -61,6 +61,8 @@ def check_channels(channels, n: int) -> dict:
                         f"{type(channels).__name__}.")
     out = {}
     for name, w in channels.items():
+        if not isinstance(name, str):  # (names reach reports, JSON and model files)
+            raise TypeError(f"`channels` names must be strings, got {name!r}.")
         arr = np.asarray(as_float_array(w, f"channels[{name!r}]", dtype=np.float64, host=True))
         if arr.ndim != 1 or arr.shape[0] != n:
             raise ValueError(f"channel {name!r} must be a 1-D array of the record's length "

@@ -63,6 +63,12 @@ class CsvTable:
                     "header row; give a 0-based column index."
                 )
             names = [h.strip() for h in self.header]
+            if names.count(key.strip()) > 1:  # which one was meant is not the reader's guess
+                where = [j for j, h in enumerate(names) if h == key.strip()]
+                raise ValueError(
+                    f"{self.path}: the header names {key.strip()!r} for {len(where)} columns "
+                    f"({', '.join(map(str, where))}); give the {role} column by its 0-based index."
+                )
             if key.strip() in names:
                 return names.index(key.strip())
             if key.strip().lstrip("-").isdigit():

@@ -88,6 +88,11 @@ def chunk_fn(design, length, noise, draw, estimator, impl):
 
     def estimate(y):
         res = estimator(design, y[0], y[1], y[2])
+        if not (hasattr(res, "model") and hasattr(res, "result")):
+            raise TypeError(
+                "`estimator` must return an object with `.model` (an hbjax.Hammerstein) and "
+                f"`.result` (an integer result code), got {type(res).__name__}."
+            )
         if not isinstance(res.model, Hammerstein):
             raise TypeError(
                 "`estimator` must return an object whose `.model` is an hbjax.Hammerstein, "
