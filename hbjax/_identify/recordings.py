@@ -15,9 +15,12 @@ from .._core.model import Hammerstein
 def _is_pair(x) -> bool:
     """``(v, y)``: two signals, where a signal may itself be a list of numbers (a list
     of records holds pairs, whose first item is no number)."""
-    return (isinstance(x, (tuple, list)) and len(x) == 2
-            and (not isinstance(x[0], (tuple, list)) or _is_number_list(x[0]))
-            and not _is_recording(x[0]))
+    if not (isinstance(x, (tuple, list)) and len(x) == 2) or _is_recording(x[0]):
+        return False
+    if isinstance(x[0], (tuple, list)):  # two lists of numbers (their lengths checked later)
+        return (_is_number_list(x[0]) and isinstance(x[1], (tuple, list))
+                and _is_number_list(x[1]))
+    return True
 
 
 def _is_number_list(x) -> bool:

@@ -27,11 +27,12 @@ def check_lengths(lengths, design):
         lengths = [lengths]
     if isinstance(lengths, (str, bytes)) or not isinstance(lengths, (Sequence, np.ndarray)):
         raise TypeError(f"`lengths` must be a sequence of integers, got {type(lengths).__name__}.")
-    if any(isinstance(n, (Sequence, np.ndarray)) and not isinstance(n, (str, bytes))
-           for n in lengths):  # a nested list is not flattened: [[300, 600]] is a mistake
+    items = np.asarray(lengths, dtype=object)
+    if items.ndim > 1 or any(np.ndim(n) > 0 for n in items.ravel()):
+        # a nested list is not flattened: [[300, 600]] is a mistake, not two lengths
         raise TypeError("`lengths` must be a flat sequence of integers, got a nested one: "
                         f"{lengths!r}.")
-    out = [positive_int(n, "lengths") for n in np.asarray(lengths, dtype=object).ravel()]
+    out = [positive_int(n, "lengths") for n in items.ravel()]
     if not out:
         raise ValueError("`lengths` must hold at least one record length.")
     minimum = max(design.staircase_period, design.binary_period)
