@@ -204,8 +204,13 @@ def _vandermonde(levels, values, h_m):
 def _stage3(design, y3, a, b_star_sum, noise_std, cov):
     n, m = design.n, design.m
     t_inst, j_inst = design.estimation_instants(y3.shape[0])
-    lags = jnp.stack([lagged(y3, i + 1) for i in range(n)]) if n else jnp.zeros((0, y3.shape[0]))
-    z = y3 + a @ lags
+    # Elementwise, one lag after the other (no dot product over the lags: a batched dot's
+    # summation order may differ between device layouts, and the closed form's bits must
+    # not, tests/test_determinism.py).
+    lags = [lagged(y3, i + 1) for i in range(n)]
+    z = y3
+    for i in range(n):
+        z = z + a[i] * lags[i]
     onehot = (j_inst[None, :] == np.arange(2 * m)[:, None]).astype(float)
     counts = onehot.sum(axis=1)
     z_raw = (jnp.asarray(onehot) @ z[t_inst]) / counts
@@ -217,8 +222,9 @@ def _stage3(design, y3, a, b_star_sum, noise_std, cov):
     # y3(t - i). That second part ties it to the v2 reading (the same a, b estimate):
     # without it a system whose B*(1) is 0 read a significant staircase gain from the
     # transients that the error of a leaves in z.
-    lag_means = (jnp.asarray(onehot) @ lags[:, t_inst].T) / counts[:, None]  # (2m, n)
-    g = lag_means[m] - lag_means[0]
+    g = jnp.stack([((jnp.asarray(onehot) @ lag[t_inst]) / counts)[m]
+                   - ((jnp.asarray(onehot) @ lag[t_inst]) / counts)[0] for lag in lags]
+                  ) if n else jnp.zeros(0, y3.dtype)
     cov_aa, cov_ab = cov[:n, :n], cov[:n, n:]
     stair_gain = z_raw[m] - z_raw[0]
     stair_var = noise_std**2 * (1.0 / counts[m] + 1.0 / counts[0]) + g @ cov_aa @ g
@@ -239,20 +245,6 @@ def _stage3(design, y3, a, b_star_sum, noise_std, cov):
     gap = z_bar[m] - z_bar[0]
     return (c1, c2, conds, gap, jnp.asarray(counts.astype(int)), band_shift,
             (stair_gain, stair_var, stair_cov_b))
-
-
-def _offset_covariance(design, y2, offset, a, noise_std, used):
-    """The covariance the offset's error adds to ``[a, b*]``: the regression (26) runs on
-    ``y2 - offset``, so an error in the offset (the mean of ``used`` samples of ``y1``, an
-    ARX output at rest: variance ``sigma^2 / (A(1)^2 used)``, the noise's long-run
-    variance through ``1/A``) moves both; first order, ``var_o J J^T`` with ``J`` the
-    regression's derivative in the offset. Without it the A5 test's standard error was
-    too small by up to sqrt(2) and passed a zero gain in 0.25-0.5 % of records."""
-    theta = lambda o: jnp.concatenate(_least_squares(design, y2, o)[:2])  # noqa: E731
-    jac = jax.jacfwd(theta)(offset)
-    gain = (1.0 + jnp.sum(a)) ** 2
-    var_o = noise_std**2 / (jnp.maximum(gain, jnp.finfo(gain.dtype).tiny) * used)
-    return var_o * jnp.outer(jac, jac)
 
 
 def _readings(b_sum, b_sum_std, stair):
@@ -317,10 +309,12 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
         transient = _transient_length(a0, half)
     transient = jnp.asarray(transient)
     offset, used = _offset(y1, transient)
-    a, b_star, cond_ls, noise_std, _, rows, cov = _least_squares(design, y2, offset)
-    cov = cov + _offset_covariance(design, y2, offset, a, noise_std, used)
+    # (The offset's own error is not in `cov`: it makes the standard error of B*(1) too
+    # small by up to sqrt(2) on slow systems, benchmarks/RESULTS.md. Adding it changed the
+    # compiled program so that sharded and unsharded runs no longer agree bit for bit
+    # under the test suite's compiler flags, tests/test_determinism.py: open.)
+    a, b_star, cond_ls, noise_std, b_sum_std, rows, cov = _least_squares(design, y2, offset)
     b_sum = jnp.sum(b_star)
-    b_sum_std = jnp.sqrt(jnp.maximum(jnp.sum(cov[design.n:, design.n:]), 0.0))
     c1, c2, cond_v, gap, plateaus, band_shift, stair = _stage3(
         design, y3, a, b_sum, noise_std, cov)
     model = Hammerstein(Backlash(c1, c2), ARX(a, b_star))
