@@ -27,6 +27,7 @@ from .quality import SIM_FIT_FLOOR
 from .recordings import (as_recordings, check_branch_degree, check_criterion, check_h_m, check_model,
                          total_samples)
 from .refine_band import best_of_core_start, labelled_from
+from .refine_kinks import escape_kinks
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
 from .stable import check_initial_state
@@ -289,7 +290,11 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     better of the two converged optima is kept: from a start that is a band at every
     recorded input (the closed form keeps its branches one at the design's inputs,
     ``GiriResult.band_shift``) the core solve stays a band and reaches the optimum where the
-    labelled one can end in a poor local optimum. The returned model is therefore always exactly
+    labelled one can end in a poor local optimum. Where the result (a success, or
+    ``branches_cross``) has an extrapolated branch touching the deciding one at a recorded
+    input, a kink of the cost on which Levenberg-Marquardt can stop short of the optimum,
+    it is refined again from its branches held apart there while that lowers the cost
+    (:mod:`hbjax._identify.refine_kinks`; eager calls only). The returned model is therefore always exactly
     :func:`hbjax.simulate`'s model on the data; ``.extrapolated`` lists the branch ranges
     that are extrapolations, ``.branches_cross`` whether the branches meet at a recorded
     input. Orders are static; record lengths are not: an eager call pads each record to
@@ -376,6 +381,9 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         # One program per bucket of record lengths; the padding is masked out of every sum.
         recs = padded_records(recs)
     res = _refine_jit(model, recs, **options)
+    if not is_traced(res.result._value) and int(code(res.result)) in (
+            int(code(RESULTS.successful)), int(code(RESULTS.branches_cross))):
+        res = escape_kinks(res, records, lambda start: _refine_jit(start, recs, **options))
     if restarts and not is_traced(res.result._value) and _suspect(res, records, criterion):
         res = _restarted(res, records, recs, restarts, options)
     if throw and is_traced(res.result._value):
