@@ -135,8 +135,16 @@ def _offset(y1, transient):
     return jnp.sum(w * y1) / count, count.astype(int)
 
 
-def _least_squares(design, y2, offset):
-    """Eq. (26) on the regression (23), rows ``t = n..T-1``."""
+def _least_squares(design, y2, offset, offset_samples=None):
+    """Eq. (26) on the regression (23), rows ``t = n..T-1``.
+
+    With ``offset_samples`` (the samples of ``y1`` whose mean is `offset`, eq. (17)) the
+    covariance of ``[a, b*]`` includes the offset's own error: the regression runs on
+    ``y2 - offset``, and to first order an offset error ``d`` moves the estimate by
+    ``-A(1) gram^-1 mean(phi) d``; ``d`` has the variance ``sigma^2 / (A(1)^2 N_1)`` of a
+    mean of ``y1`` at rest (the noise's long-run variance through ``1/A``), so ``A(1)``
+    cancels. Without it the standard error of ``B*(1)`` was too small by up to sqrt(2)
+    on slow systems (a zero-gain system's z-score had a standard deviation of 1.39)."""
     n = design.n
     y_tilde = y2 - offset
     u_tilde = jnp.asarray(design.binary_internal(y2.shape[0]))
@@ -152,7 +160,17 @@ def _least_squares(design, y2, offset):
     cond = eig[-1] / jnp.maximum(eig[0], 1e-300)
     resid = target - phi @ theta
     noise_var = jnp.sum(resid**2) / jnp.maximum(rows - 2 * n, 1)
-    cov = noise_var * jnp.linalg.inv(gram_s) / jnp.outer(scale, scale) / rows
+    gram_inv = jnp.linalg.inv(gram_s) / jnp.outer(scale, scale)
+    cov = noise_var * gram_inv / rows
+    if offset_samples is not None:
+        # Column by column, multiply-adds only: a batched product's summation order may
+        # differ between device layouts, and the closed form's bits must not
+        # (tests/test_determinism.py).
+        mean_phi = jnp.mean(phi, axis=0)
+        lever = gram_inv[:, 0] * mean_phi[0]
+        for k in range(1, 2 * n):
+            lever = lever + gram_inv[:, k] * mean_phi[k]
+        cov = cov + noise_var / offset_samples * (lever[:, None] * lever[None, :])
     b_cov = cov[n:, n:]
     b_sum_std = jnp.sqrt(jnp.maximum(jnp.sum(b_cov), 0.0))
     return theta[:n], theta[n:], cond, jnp.sqrt(noise_var), b_sum_std, rows, cov
@@ -309,11 +327,8 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
         transient = _transient_length(a0, half)
     transient = jnp.asarray(transient)
     offset, used = _offset(y1, transient)
-    # (The offset's own error is not in `cov`: it makes the standard error of B*(1) too
-    # small by up to sqrt(2) on slow systems, benchmarks/RESULTS.md. Adding it changed the
-    # compiled program so that sharded and unsharded runs no longer agree bit for bit
-    # under the test suite's compiler flags, tests/test_determinism.py: open.)
-    a, b_star, cond_ls, noise_std, b_sum_std, rows, cov = _least_squares(design, y2, offset)
+    a, b_star, cond_ls, noise_std, b_sum_std, rows, cov = _least_squares(design, y2, offset,
+                                                                         used)
     b_sum = jnp.sum(b_star)
     c1, c2, cond_v, gap, plateaus, band_shift, stair = _stage3(
         design, y3, a, b_sum, noise_std, cov)
