@@ -210,8 +210,7 @@ def test_refine_leaves_a_kink_where_the_closed_form_touches(level, draw):
     sys, design, records, sigma = reproduce(14, level, draw, seed=5, levels=(0.01, 0.03, 0.05),
                                             draws=14, T=3000)
     giri = hbjax.identify_giri(design, *[y for _, y in records])
-    inputs = np.concatenate([v for v, _ in records])
-    assert held_apart(giri.model, inputs, 0.05) is not None  # the start is on the kink
+    assert held_apart(giri.model, records, 0.05) is not None  # the start is on the kink
     ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
     excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
     assert ref.result == hbjax.RESULTS.successful, ref.message
@@ -226,24 +225,33 @@ def test_branches_are_held_apart_only_at_a_touch():
     for _ in range(20):
         m = int(rng.integers(3, 6))
         v = rng.uniform(-3, 3, 400)
+        records = [(v, np.zeros_like(v))]
         c1 = rng.normal(size=m)
         side = rng.choice([-1.0, 1.0])
         band = np.zeros(m)
         band[0] = side * rng.uniform(0.5, 2)
-        assert held_apart(hbjax.Hammerstein(hbjax.Backlash(c1, c1 + band), arx), v,
+        assert held_apart(hbjax.Hammerstein(hbjax.Backlash(c1, c1 + band), arx), records,
                           0.05) is None  # a band of constant width touches nowhere
         # a band of width s (v - v_k)^2: the branches touch at the recorded input v_k
         k = int(rng.integers(v.size))
         s = rng.uniform(0.1, 1)
         quad = np.zeros(m)
         quad[:3] = side * s * np.array([v[k] ** 2, -2 * v[k], 1.0])
-        c2 = c1 + quad
-        apart = held_apart(hbjax.Hammerstein(hbjax.Backlash(c1, c2), arx), v, 0.05)
-        before = side * (polyval_asc(c2, v) - polyval_asc(c1, v))
-        after = side * (polyval_asc(np.asarray(apart.backlash.c2), v)
-                        - polyval_asc(np.asarray(apart.backlash.c1), v))
-        # held apart at the touch by 5 % of the band's median width, in its orientation
-        np.testing.assert_allclose(after[k] - before[k], 0.05 * np.median(before), rtol=1e-9)
+        touching = hbjax.Hammerstein(hbjax.Backlash(c1, c1 + quad), arx)
+        for separation in (0.05, -0.05):
+            apart = held_apart(touching, records, separation)
+            before = side * (polyval_asc(c1 + quad, v) - polyval_asc(c1, v))
+            after = side * (polyval_asc(np.asarray(apart.backlash.c2), v)
+                            - polyval_asc(np.asarray(apart.backlash.c1), v))
+            # moved apart (or through) at the touch by 5 % of the internal signal's
+            # spread, in the band's orientation; computed here from its own play loop
+            u, out = 0.0, []
+            for x in v:
+                lo, hi = sorted((polyval_asc(c1, x), polyval_asc(c1 + quad, x)))
+                u = min(max(u, lo), hi)
+                out.append(u)
+            np.testing.assert_allclose(after[k] - before[k], separation * np.ptp(out),
+                                       rtol=1e-9)
         assert abs(before[k]) < 1e-9 * np.max(before)
 
 

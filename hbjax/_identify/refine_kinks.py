@@ -13,49 +13,58 @@ the paper's experiments (random paper-class systems, ``m = 5``, ``benchmarks/ide
 ``+h_m``, three runs stopped 39-45 ``sigma^2`` above the true system's cost with every
 residual test passed, while the cost falls monotonically along the straight path from there
 to the refinement started from the truth (12-13 ``sigma^2`` below it). Holding the branches
-apart at the touch by a few percent of the band's width and refining again reached that
-optimum in one to four rounds.
+apart at the touch by a few percent of the internal signal's spread (or through each
+other) and refining again reached the optimum in each of them, and in two more such runs of
+another seed.
 """
 
 import numpy as np
 
 from .._core.model import Hammerstein
+from .._core.simulate import play
 from .._results import RESULTS, code
 
-# A touch: the band's width at a recorded input below this fraction of its median width.
+# A touch: the band's width at a recorded input below this fraction of the internal
+# signal's spread.
 TOUCH = 1e-3
-# Widths (fractions of the band's median width) the branches are held apart at a touch;
-# each round tries all and keeps the best: a small step leaves a shallow kink, a large one
-# a deep one, and a negative one crosses the branches there, where the optimum has the
-# extrapolation on the other side of a branch whose crossing decides no output (measured
-# above: the refinement from the truth crossed at the touch in two of five such runs).
-SEPARATIONS = (0.05, 0.2, 1.0, -0.05, -0.2, -1.0)
+# Widths (fractions of the internal signal's spread) the branches are held apart at a
+# touch; each round tries all and keeps the best: a small step leaves a shallow kink, a
+# large one a deep one, and a negative one crosses the branches there, where the optimum
+# has the extrapolation on the other side of a branch whose crossing decides no output
+# (refined from the truth, two of five such runs crossed at the touch).
+SEPARATIONS = (0.01, 0.05, 0.2, -0.01, -0.05, -0.2)
 # Rounds of separation at most (each at least one refinement); measured: one to four.
 MAX_ROUNDS = 8
 
 
-def held_apart(model: Hammerstein, inputs: np.ndarray, separation: float):
-    """``model`` with its branches moved apart by ``separation`` x the band's median width
-    (negative: through each other) at the recorded input where the band is narrowest, or ``None`` where the branches do
-    not touch at any recorded input (width above :data:`TOUCH` x the median).
+def held_apart(model: Hammerstein, records, separation: float):
+    """``model`` with its branches moved apart by ``separation`` x the spread of its
+    internal signal on ``records`` (negative: through each other) at the recorded input
+    where the band is narrowest, or ``None`` where the branches do not touch at any
+    recorded input (narrowest width above :data:`TOUCH` x that spread).
 
-    The change is the least-squares one in the branch coefficients of ``v / max|v|`` (so
-    that no single power carries it), half on each branch, with the band's own orientation
-    (the sign of ``P2 - P1`` where it is widest)."""
+    The spread (``max - min`` of the play operator's output, :func:`hbjax.play`) is what
+    the outputs see; the band's own width is not a scale: an extrapolated branch can lie
+    orders of magnitude away where it never decides. The change is the least-squares one
+    in the branch coefficients of ``v / max|v|`` (so that no single power carries it), half
+    on each branch, with the band's own orientation (the sign of ``P2 - P1`` where it is
+    widest)."""
     c1 = np.asarray(model.backlash.c1, float)
     c2 = np.asarray(model.backlash.c2, float)
-    v = np.unique(inputs)
+    inputs = [np.asarray(v, float).ravel() for v, _ in records]
+    u = np.concatenate([np.asarray(play(model.backlash, v)) for v in inputs])
+    spread = float(np.ptp(u)) if u.size else 0.0
+    v = np.unique(np.concatenate(inputs))
     poly = np.polynomial.polynomial.polyval
     gap = poly(v, c2) - poly(v, c1)
     side = np.sign(gap[np.argmax(np.abs(gap))])
     width = side * gap
-    typical = float(np.median(np.abs(width)))
     k = int(np.argmin(width))
     scale = float(np.max(np.abs(v)))
-    if not (typical > 0 and scale > 0) or width[k] > TOUCH * typical:
+    if not (np.isfinite(spread) and spread > 0 and scale > 0) or width[k] > TOUCH * spread:
         return None
     powers = (v[k] / scale) ** np.arange(c1.size)
-    shift = separation * typical * powers / (powers @ powers) / scale ** np.arange(c1.size)
+    shift = separation * spread * powers / (powers @ powers) / scale ** np.arange(c1.size)
     backlash = type(model.backlash)(c1 - side * shift / 2, c2 + side * shift / 2)
     return Hammerstein(backlash, model.arx)
 
@@ -65,7 +74,6 @@ def escape_kinks(res, records, refine_from):
     (:func:`held_apart`) with a lower cost, repeated while the cost falls (at most
     :data:`MAX_ROUNDS` rounds). ``refine_from(model)`` refines on the same records with the
     same options; a result that is not a success is left only for a success."""
-    inputs = np.concatenate([np.asarray(v, float).ravel() for v, _ in records])
     ok = int(code(RESULTS.successful))
 
     def better(new, old):
@@ -77,7 +85,7 @@ def escape_kinks(res, records, refine_from):
     for _ in range(MAX_ROUNDS):
         best = res
         for separation in SEPARATIONS:
-            start = held_apart(res.model, inputs, separation)
+            start = held_apart(res.model, records, separation)
             if start is None:
                 return res
             again = refine_from(start)
