@@ -37,11 +37,12 @@ SEPARATIONS = (0.01, 0.05, 0.2, -0.01, -0.05, -0.2)
 MAX_ROUNDS = 8
 
 
-def held_apart(model: Hammerstein, records, separation: float):
-    """``model`` with its branches moved apart by ``separation`` x the spread of its
-    internal signal on ``records`` (negative: through each other) at the recorded input
-    where the band is narrowest, or ``None`` where the branches do not touch at any
-    recorded input (narrowest width above :data:`TOUCH` x that spread).
+def held_apart(model: Hammerstein, records, separations):
+    """``model`` with its branches moved apart by each of ``separations`` (a number or a
+    sequence) x the spread of its internal signal on ``records`` (negative: through each
+    other) at the recorded input where the band is narrowest: one model, or a list, or
+    ``None`` where the branches do not touch at any recorded input (narrowest width above
+    :data:`TOUCH` x that spread).
 
     The spread (``max - min`` of the play operator's output, :func:`hbjax.play`) is what
     the outputs see; the band's own width is not a scale: an extrapolated branch can lie
@@ -64,9 +65,16 @@ def held_apart(model: Hammerstein, records, separation: float):
     if not (np.isfinite(spread) and spread > 0 and scale > 0) or width[k] > TOUCH * spread:
         return None
     powers = (v[k] / scale) ** np.arange(c1.size)
-    shift = separation * spread * powers / (powers @ powers) / scale ** np.arange(c1.size)
-    backlash = type(model.backlash)(c1 - side * shift / 2, c2 + side * shift / 2)
-    return Hammerstein(backlash, model.arx)
+    unit = spread * powers / (powers @ powers) / scale ** np.arange(c1.size)
+
+    def moved(separation):
+        shift = separation * unit
+        return Hammerstein(type(model.backlash)(c1 - side * shift / 2, c2 + side * shift / 2),
+                           model.arx)
+
+    if np.ndim(separations) == 0:
+        return moved(separations)
+    return [moved(x) for x in separations]
 
 
 def escape_kinks(res, records, refine_from):
@@ -83,11 +91,11 @@ def escape_kinks(res, records, refine_from):
             old.stats["cost"]) * (1 - 1e-6)
 
     for _ in range(MAX_ROUNDS):
+        starts = held_apart(res.model, records, SEPARATIONS)
+        if starts is None:
+            return res
         best = res
-        for separation in SEPARATIONS:
-            start = held_apart(res.model, records, separation)
-            if start is None:
-                return res
+        for start in starts:
             again = refine_from(start)
             if better(again, best):
                 best = again
