@@ -524,3 +524,14 @@ def test_damaged_files_raise_only_documented_errors(tmp_path, kind, cut, noise, 
         load(p)
     except DOCUMENTED:
         pass
+
+
+def test_a_channel_named_twice_in_a_saved_file_is_refused_not_merged(tmp_path):
+    rec = hbjax.Recording([1.0, 2, 3], [10.0, 20, 30], dt=0.5,
+                          channels={"force": [1.0, 2, 3], "speed": [4.0, 5, 6]})
+    p = hbjax.save_recording(tmp_path / "r.csv", rec)
+    same_recording(rec, hbjax.load_recording(p))
+    text = p.read_text().replace("speed", "force")  # edited by hand
+    p.write_text(text)
+    with pytest.raises(ValueError, match=r"channel 'force' is named by two header columns"):
+        hbjax.load_recording(p)

@@ -201,8 +201,16 @@ def load_recording(
             t0 = table.meta.get("t0", 0.0)
             used = {table.index(k, "column") for k in keys if k is not None}
             used |= {j for j in [table.named("t")] if j is not None}
-            channels = {table.header[j].strip(): table.column(j)
-                        for j in range(table.n_columns) if j not in used}
+            extra = [j for j in range(table.n_columns) if j not in used]
+            seen = {}
+            for j in extra:
+                name = table.header[j].strip()
+                if name in seen:  # a dict would keep the last and drop the first unseen
+                    raise ValueError(
+                        f"{p}: the channel {name!r} is named by two header columns "
+                        f"({seen[name]} and {j}, 0-based); rename one of them.")
+                seen[name] = j
+            channels = {table.header[j].strip(): table.column(j) for j in extra}
     v, y, t = columns
     rec_dt = _resolve_dt(p, t, file_dt, dt, time)
     if t is not None:
