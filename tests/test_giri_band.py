@@ -33,6 +33,13 @@ def _ssr(sys, records):
     return float(sum(np.sum((y - predict_numpy(sys, v, y)) ** 2) for v, y in records))
 
 
+def _refined_excess(start, records, sys, sigma):
+    """``refine`` from `start` (paper gauge) and its prediction cost above the true
+    system's on the same records, in ``sigma^2``."""
+    ref = hbjax.refine(start, records, h_m=sys["h_m"], throw=False)
+    return ref, (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
+
+
 def _band_holds(model, design):
     """P1* >= P2* at every design level and at 0, P1*(0) >= P1*(h_m) (paper gauge)."""
     c1, c2 = np.asarray(model.backlash.c1), np.asarray(model.backlash.c2)
@@ -54,8 +61,7 @@ def test_closed_form_is_a_band_and_refines_to_the_optimum():
             assert giri.result == hbjax.RESULTS.successful
             assert _band_holds(giri.model, design)
             shifted += float(giri.band_shift) > 0
-            ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
-            excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
+            ref, excess = _refined_excess(giri.model, records, sys, sigma)
             runs += 1
             if ref.result != hbjax.RESULTS.successful or excess > chi2.ppf(0.99, p):
                 failures.append((ref.message, excess))
@@ -105,8 +111,7 @@ def test_weak_v2_record_does_not_refuse_a_valid_system():
             refused.append(giri.message)
             continue
         assert float(giri.b_star_sum_std) > 0.2 * abs(true_gain)  # the weak reading
-        ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
-        excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
+        ref, excess = _refined_excess(giri.model, records, sys, sigma)
         assert ref.result == hbjax.RESULTS.successful and excess <= chi2.ppf(0.99, p), (
             ref.message, excess)
     assert refused == []
@@ -125,8 +130,7 @@ def test_refine_reaches_the_optimum_where_the_core_solve_crawls_along_a_kink():
     rng = np.random.default_rng(sys_rng.integers(2**63))
     design, records, sigma = paper_records(sys, rng, 0.05, 6000)
     giri = hbjax.identify_giri(design, *[y for _, y in records])
-    ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
-    excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
+    ref, excess = _refined_excess(giri.model, records, sys, sigma)
     assert ref.result == hbjax.RESULTS.successful, ref.message
     assert excess <= chi2.ppf(0.99, 1 + 1 + 2 * 5 - 1), excess
 
@@ -211,8 +215,7 @@ def test_refine_leaves_a_kink_where_the_closed_form_touches(level, draw):
                                             draws=14, T=3000)
     giri = hbjax.identify_giri(design, *[y for _, y in records])
     assert held_apart(giri.model, records, 0.05) is not None  # the start is on the kink
-    ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False)
-    excess = (_ssr(_model_dict(ref.model), records) - _ssr(sys, records)) / sigma**2
+    ref, excess = _refined_excess(giri.model, records, sys, sigma)
     assert ref.result == hbjax.RESULTS.successful, ref.message
     assert excess <= chi2.ppf(0.99, 2 + 2 + 2 * 5 - 1), excess
 

@@ -13,15 +13,16 @@ from tests.generators.paper_runs import reproduce
 
 def test_restarts_leave_the_local_minima_of_a_far_start():
     """``refine(..., restarts=16)`` on paper-mode runs (the independent generator, the
-    seed-3 study of ``benchmarks/identify_random.py``) whose closed-form start ends in a
-    local minimum reported as success, or in a poor optimum refused as
-    ``no_input_effect`` (measured with and without the suite's XLA flags): it reaches the
-    cost of the refinement started from the true system. On a run without that problem
-    the restarts are not taken."""
-    far = [(16, 0.01, 13), (16, 0.03, 10)]
+    studies of ``benchmarks/identify_random.py``) whose closed-form start is so far off that
+    the refinement ends in a poor optimum refused as ``branches_cross`` or
+    ``no_input_effect`` (seed 5, 352 682 and 25 437 sigma^2 above the truth): it reaches
+    the cost of the refinement started from the true system. On a run without that problem
+    the restarts are not taken. (The seed-3 local minima this test used before stopped on
+    a kink of the cost, which plain refinement now leaves: ``tests/test_giri_band.py``.)"""
+    far = [(5, 4, 0.03, 7), (5, 43, 0.03, 11)]
     exercised = 0
-    for system, level, draw in far + [(16, 0.01, 0)]:
-        sys_, design, records, sigma = reproduce(system, level, draw, seed=3,
+    for seed, system, level, draw in far + [(3, 16, 0.01, 0)]:
+        sys_, design, records, sigma = reproduce(system, level, draw, seed=seed,
                                                  levels=[0.01, 0.03, 0.05], draws=14, T=3000)
         h_m = sys_["h_m"]
         start = hbjax.identify_giri(design, *(y for _, y in records)).model
@@ -33,7 +34,7 @@ def test_restarts_leave_the_local_minima_of_a_far_start():
         above = float(plain.stats["cost"]) - float(truth.stats["cost"])
         restarted = hbjax.refine(start, records, h_m=h_m, restarts=16)  # throw=True
         assert float(restarted.stats["cost"]) - float(truth.stats["cost"]) <= allowance
-        if (system, level, draw) in far:
+        if (seed, system, level, draw) in far:
             exercised += plain.result != hbjax.RESULTS.successful or above > allowance
         else:
             assert plain.result == hbjax.RESULTS.successful and above <= allowance
