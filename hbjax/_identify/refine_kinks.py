@@ -36,7 +36,7 @@ SEPARATIONS = (0.02, 0.1, -0.02, -0.1)
 # Another round only after a round that lowered the cost by at least this many noise
 # variances (sum of squares over the mean square): the local minima left on a kink were
 # 39-85 sigma^2 above the optimum, while half of all paper-mode refinements end touching
-# at a constrained optimum where a round gains at most a few sigma^2 (measured: 0.04-9).
+# at a constrained optimum where a round gains at most a few sigma^2 (measured: 0.01-9).
 MATERIAL = 1.0
 # Rounds of separation at most (each at least one refinement); measured: one to four.
 MAX_ROUNDS = 8
