@@ -240,9 +240,9 @@ def _stage3(design, y3, a, b_star_sum, noise_std, cov):
     # y3(t - i). That second part ties it to the v2 reading (the same a, b estimate):
     # without it a system whose B*(1) is 0 read a significant staircase gain from the
     # transients that the error of a leaves in z.
-    g = jnp.stack([((jnp.asarray(onehot) @ lag[t_inst]) / counts)[m]
-                   - ((jnp.asarray(onehot) @ lag[t_inst]) / counts)[0] for lag in lags]
-                  ) if n else jnp.zeros(0, y3.dtype)
+    level_means = [(jnp.asarray(onehot) @ lag[t_inst]) / counts for lag in lags]
+    g = jnp.stack([means[m] - means[0] for means in level_means]) if n else jnp.zeros(
+        0, y3.dtype)
     cov_aa, cov_ab = cov[:n, :n], cov[:n, n:]
     stair_gain = z_raw[m] - z_raw[0]
     stair_var = noise_std**2 * (1.0 / counts[m] + 1.0 / counts[0]) + g @ cov_aa @ g
