@@ -131,6 +131,7 @@ FIGURES = (
     ("offset", "offset ybar1, eq. (17)"),
     ("gap", "gap P2*(-h_m) - P1*(h_m) (1 expected)"),
     ("b_star_sum_std", "std err of B*(1)"),
+    ("static_gain_evidence", "B*(1) != 0 (A5) shown by"),
     ("cond_ls", "condition number of (26)"),
     ("cond_vandermonde", "condition numbers of (45)-(46)"),
     ("transient", "transient samples skipped"),

@@ -1,6 +1,7 @@
 """The paper's closed-form identification, sections 4-5: offset (16)-(17), least squares
 (26) for ``A`` and ``B* = mu B``, Vandermonde solves (45)-(46) for ``C1*`` and ``C2*``."""
 
+import dataclasses
 import math
 
 import equinox as eqx
@@ -52,6 +53,10 @@ class GiriResult(eqx.Module):
     - `band_shift`: largest change of a plateau value (in ``u*`` units) made to keep the
       branches a band at the design's inputs (0: the paper's solve of (45)-(46) already
       is one; see :mod:`hbjax._identify.giri_band`).
+    - `static_gain_evidence`: what showed ``B*(1) != 0`` (assumption A5): ``"closed
+      form"`` (its two readings, the default), or ``"three records"`` where those could
+      not and the refinement of this model on all three records could
+      (:func:`identify_giri`; the model is the closed form's either way).
     - `result`: a :class:`hbjax.RESULTS` member, ``RESULTS.successful`` on success (see
       `message`).
     """
@@ -69,6 +74,7 @@ class GiriResult(eqx.Module):
     b_star_sum_std: Float[Array, ""]
     band_shift: Float[Array, ""]
     result: RESULTS
+    static_gain_evidence: str = eqx.field(static=True, default="closed form")
 
     @property
     def message(self) -> str:
@@ -357,6 +363,52 @@ def estimate_giri(design: GiriDesign, y1, y2, y3, transient=None) -> GiriResult:
 _estimate_jit = eqx.filter_jit(estimate_giri)
 
 
+# |B*(1)| in standard errors of the refinement on all three records that lifts the closed
+# form's refusal of A5: the closed form's own level (:func:`_zero_static_gain`).
+_A5_REFINED_Z = 4.0
+
+
+def _static_gain_on_all_records(design, res, outputs):
+    """The closed form's refusal of A5 (``B*(1)`` within 4 standard errors of 0 on its two
+    readings), tried again on the evidence of all three records: the closed form's model
+    refined on them (:func:`hbjax.refine`, paper normalisation). The refusal is lifted,
+    the closed form's result standing with its model unchanged (the paper's), only where
+    that refinement is a success, its one-step errors pass the whiteness and independence
+    tests of :func:`hbjax.resid` on every record, and it puts ``B*(1)`` at least
+    :data:`_A5_REFINED_Z` of its own standard errors from 0.
+
+    Why: the closed form reads ``B*(1)`` from the v2 pulses and the staircase's plateau
+    ends only, while the prediction errors of every sample carry it. On slow systems
+    (``A(1)`` 0.003-0.05) the closed form's readings sat 0.5-2.5 standard errors from 0
+    where the refinement put ``B*(1)`` about 7 away (``benchmarks/identify_random.py
+    --seed 7``; ``benchmarks/RESULTS.md``). The residual tests are what keep a system whose
+    ``B(1)`` is 0 refused: from its closed form the refinement can stop in a local
+    minimum (hundreds to 10^6 sigma^2 above the truth's cost) whose ``B*(1)`` is many of
+    its standard errors from 0, and whose errors are far from white.
+    Only eager calls: under ``jit``/``vmap`` (:func:`estimate_giri`, the Monte Carlo
+    studies) the closed form's own test decides.
+    """
+    # refine normalises through this module: imported here, where the two meet.
+    from .refine import refine, residuals_suspect
+
+    inputs = (design.constant_input, design.binary_input, design.staircase_input)
+    records = [(make(y.shape[0]), y) for make, y in zip(inputs, outputs)]
+    try:
+        # (no random restarts: a refusal is judged on this model's refinement alone)
+        refined = refine(res.model, records, h_m=design.h_m, restarts=0, throw=False)
+    except ValueError:  # a start refine cannot take (mu = 0, non-finite): the refusal stands
+        return res
+    if residuals_suspect(refined, records, "prediction"):  # (also: not a success)
+        return res
+    n = design.n
+    se = math.sqrt(max(float(np.sum(np.asarray(refined.covariance)[n:2 * n, n:2 * n])), 0.0))
+    gain = float(np.sum(np.asarray(refined.model.arx.b)))
+    if not (math.isfinite(se) and se > 0 and abs(gain) >= _A5_REFINED_Z * se):
+        return res
+    return dataclasses.replace(res, result=RESULTS.successful,
+                               static_gain_evidence="three records")
+
+
 def _record(y, name, minimum, what):
     y = as_float_array(y, name, ndim=1, dtype=jnp.float64)
     if y.shape[0] < minimum:
@@ -433,6 +485,8 @@ def identify_giri(design: GiriDesign, y1, y2, y3, *, v1=None, v2=None, v3=None,
         if transient >= y1.shape[0] - 1:
             raise ValueError(f"`transient` ({transient}) leaves no sample of `y1` ({y1.shape[0]}).")
     res = _estimate_jit(design, y1, y2, y3, transient)
+    if not is_traced(res.result._value) and res.result == RESULTS.zero_static_gain:
+        res = _static_gain_on_all_records(design, res, (y1, y2, y3))
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     if throw and res.result != RESULTS.successful:
