@@ -167,7 +167,7 @@ def truth_refined(sys, records):
         return f"raised {type(e).__name__}"
 
 
-def run_paper(sys, rng, level, T, accuracy_factor, restarts=0):
+def run_paper(sys, rng, level, T, accuracy_factor, restarts=None):
     design, records, sigma = paper_records(sys, rng, level, T)
     inputs, ys = [v for v, _ in records], [y for _, y in records]
     p = free_parameters(sys)
@@ -186,7 +186,8 @@ def run_paper(sys, rng, level, T, accuracy_factor, restarts=0):
     out["giri_excess"] = (ssr(g, records) - ssr(sys, records)) / sigma**2
     out["giri_distance"] = prediction_distance(g, sys, records) / sigma**2
     try:
-        ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False, restarts=restarts)
+        more = {} if restarts is None else {"restarts": restarts}  # None: refine's default
+        ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False, **more)
     except Exception as e:  # noqa: BLE001
         return failed(category="raised", stage="refine", message=f"{type(e).__name__}: {e}")
     out["steps"] = int(ref.stats["steps"])
@@ -409,8 +410,9 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true",
                     help="fit modes: 8 starts and T = 3000 (the paper mode keeps T = 6000: its experiments are cheap)")
-    ap.add_argument("--restarts", type=int, default=0,
-                    help="paper mode: refine(..., restarts=K) (multi-start fit where the refinement is suspect)")
+    ap.add_argument("--restarts", type=int, default=None,
+                    help="paper mode: refine(..., restarts=K) (multi-start fit where the refinement is suspect; "
+                         "default: refine's own, 16)")
     ap.add_argument("--T", type=int, default=None, help="samples per experiment (default 6000; quick fit modes 3000)")
     ap.add_argument("--fit", action="store_true", help="hbjax.fit on ordinary inputs")
     ap.add_argument("--closing", action="store_true", help="hbjax.fit on closing-loop systems")
@@ -449,7 +451,7 @@ def main(argv=None):
     print(text)
     if args.write_results:
         title = {"paper": "paper mode", "fit": "fit mode", "closing": "closing-loop mode"}[mode]
-        if mode == "paper" and args.restarts:
+        if mode == "paper" and args.restarts is not None:
             title += f" with refine(..., restarts={args.restarts})"
         write_section(f"Identification on random systems, {title} (benchmarks/identify_random.py)",
                       results_markdown(mode, runs, args, elapsed, load_before, os.getloadavg()))

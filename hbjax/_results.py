@@ -60,7 +60,7 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "output's own past values (see .residual_p[2], the p-value of no input effect): the "
         "records show no effect of the input at this noise level (e.g. slow poles integrating "
         "the equation noise, or an output unrelated to the input), or the estimate is a poor "
-        "local optimum (try other starts: refine(..., restarts=16) or hbjax.fit)"
+        "local optimum (try more starts: refine(..., restarts=64) or hbjax.fit)"
     )
 
 

@@ -212,7 +212,14 @@ def check_gauge(model, h_m):
         )
 
 
-def _suspect(res, records, criterion) -> bool:
+# refine's default random starts where its result fails or its errors fail the residual
+# tests: on the paper mode's far closed-form starts that ended in branches_cross,
+# no_input_effect or a local minimum reported as success, 16 starts reached the true
+# system's cost (tests/test_refine_restarts.py; benchmarks/paper_local_minima.py: 9 of 9).
+AUTO_RESTARTS = 16
+
+
+def residuals_suspect(res, records, criterion) -> bool:
     """Whether a refinement may have stopped short of the optimum: it is not a success, or
     (prediction criterion) its one-step errors fail :func:`hbjax.resid`'s whiteness or
     independence test on a record (Bonferroni over the ``2 x records`` tests)."""
@@ -256,7 +263,7 @@ def _restarted(res, records, recs, restarts, options):
 def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m=None,
            max_steps: int = 256, rtol: float = 1e-7, atol: float = 1e-7,
            min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "zero",
-           restarts: int = 0, throw: bool = True) -> RefineResult:
+           restarts: int = AUTO_RESTARTS, throw: bool = True) -> RefineResult:
     """Refine an HB-Hammerstein model on recorded data by nonlinear least squares.
 
     Minimises, with :class:`optimistix.LevenbergMarquardt` through the differentiable
@@ -334,15 +341,17 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       squares for the current parameters (:mod:`hbjax._identify.stable`); the reported
       free-run fit figures start from the state :func:`hbjax.estimate_initial_state`
       estimates (output lags and play state).
-    - `restarts`: ``0`` (default) refines from `model` only. ``k > 0``: where the result
-      is not a success, or (prediction criterion) its one-step errors fail the whiteness
-      or independence test of :func:`hbjax.resid` on a record (level 0.01, Bonferroni
-      over the records' tests), the records are also fitted from ``k`` random starts
-      (:func:`hbjax.fit`, key ``jax.random.PRNGKey(0)``), that optimum is refined in
-      this normalisation and kept if it is a success with a lower cost. A start far from
-      the optimum (the closed form of a high-degree branch, ``m = 5``) can end in a
-      local minimum whose errors correlate with the input: on the paper mode's failures
-      of ``benchmarks/identify_random.py`` the tests flagged 7 of 9 and 16 starts reached
+    - `restarts`: ``k > 0`` (default 16, :data:`AUTO_RESTARTS`): where the result is not
+      a success, or (prediction criterion) its one-step errors fail the whiteness or
+      independence test of :func:`hbjax.resid` on a record (level 0.01, Bonferroni over
+      the records' tests), the records are also fitted from ``k`` random starts
+      (:func:`hbjax.fit`, key ``jax.random.PRNGKey(0)``), that optimum is refined in this
+      normalisation and kept if it is a success with a lower cost (any success where the
+      refinement from `model` failed); eager calls only. ``0`` refines from `model`
+      alone (faster where the tests reject anyway). A start far from the optimum (the
+      closed form of a high-degree branch, ``m = 5``) can end in a local minimum whose
+      errors correlate with the input: on the paper mode's failures of
+      ``benchmarks/identify_random.py`` the tests flagged 7 of 9 and 16 starts reached
       the true system's cost in all 9 (``benchmarks/paper_local_minima.py``). On records
       the model structure cannot describe (real data) the tests always reject, so every
       call then also pays for the multi-start fit.
@@ -384,7 +393,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     if not is_traced(res.result._value) and int(code(res.result)) in (
             int(code(RESULTS.successful)), int(code(RESULTS.branches_cross))):
         res = escape_kinks(res, records, lambda start: _refine_jit(start, recs, **options))
-    if restarts and not is_traced(res.result._value) and _suspect(res, records, criterion):
+    if restarts and not is_traced(res.result._value) and residuals_suspect(res, records, criterion):
         res = _restarted(res, records, recs, restarts, options)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
