@@ -143,7 +143,7 @@ def test_one_result_enumeration_for_closed_form_refinement_and_fit():
     assert failed.result != hbjax.RESULTS.successful
     assert failed.message == hbjax.RESULTS[failed.result]
     refined = hbjax.refine(giri.model, list(zip(inputs, outputs)), h_m=design.h_m, max_steps=1,
-                           throw=False)
+                           restarts=0, throw=False)
     assert refined.result == hbjax.RESULTS.nonlinear_max_steps_reached
 
 

@@ -249,7 +249,6 @@ def test_a_static_gain_of_zero_is_refused_on_both_readings_together():
     assert not any(outcomes), outcomes
 
 
-
 @pytest.mark.parametrize("level,draw", [(0.01, 12), (0.03, 7), (0.03, 9)])
 def test_refine_leaves_a_kink_where_the_closed_form_touches(level, draw):
     # System 14 of the study with seed 5 (na = 2, m = 5): the closed form leaves P2 touching

@@ -298,9 +298,10 @@ def test_bad_input(paper):
 
 def test_non_convergence_is_reported(paper):
     start = hbjax.unflatten_params(paper["truth"], hbjax.flatten_params(paper["truth"]) * 1.3)
+    # (restarts=0: the verdict of this refinement, not of a multi-start fit's)
     with pytest.raises(hbjax.RefinementError, match="did not converge"):
-        hbjax.refine(start, paper["recs"], h_m=4.0, max_steps=2)
-    res = hbjax.refine(start, paper["recs"], h_m=4.0, max_steps=2, throw=False)
+        hbjax.refine(start, paper["recs"], h_m=4.0, max_steps=2, restarts=0)
+    res = hbjax.refine(start, paper["recs"], h_m=4.0, max_steps=2, restarts=0, throw=False)
     assert res.result == RESULTS.nonlinear_max_steps_reached
     assert "maximum number of steps" in res.message
     assert int(res.stats["steps"]) == 2
