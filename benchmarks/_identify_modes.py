@@ -72,8 +72,8 @@ def crlb_study(args):
                     break
             try:
                 giri = hbjax.identify_giri(design, *[y for _, y in records], throw=False)
-                ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False,
-                                   restarts=args.restarts)
+                more = {} if args.restarts is None else {"restarts": args.restarts}
+                ref = hbjax.refine(giri.model, records, h_m=sys["h_m"], throw=False, **more)
                 ok = ref.message == "success"
             except Exception:  # noqa: BLE001  (counted, never hidden)
                 ok = False
@@ -107,7 +107,7 @@ def crlb_markdown(rows, args):
     lines = [
         f"Noise std {args.noise_levels[0]:g} x the output range, T = {args.T} samples per "
         f"experiment, {args.draws} realisations per system (`identify_giri` then `refine`"
-        f"{f'(..., restarts={args.restarts})' if args.restarts else ''}, "
+        f"{f'(..., restarts={args.restarts})' if args.restarts is not None else ''}, "
         f"paper gauge); bound: `hbjax.crlb` at the true system. Allowances: "
         f"`var/CRLB <= 1.2 chi2_(R-1)(1 - 0.01/p)/(R-1)`, `|bias|/sd <= 0.1 + z(1 - 0.005/p)/sqrt(R)`.",
         "",

@@ -84,7 +84,7 @@ def main(argv=None):
                 / sigma**2
 
         giri = hbjax.identify_giri(design, *(y for _, y in records), throw=False)
-        ref = hbjax.refine(giri.model, records, h_m=sys_["h_m"], throw=False)
+        ref = hbjax.refine(giri.model, records, h_m=sys_["h_m"], restarts=0, throw=False)
         truth = hbjax.normalise(study.to_hbjax(sys_), sys_["h_m"])
         from_truth = hbjax.refine(truth, records, h_m=sys_["h_m"], throw=False)
         fit = hbjax.fit(records, na=sys_["na"], nb=sys_["nb"], m=sys_["m"],

@@ -63,6 +63,30 @@ def test_readme_quickstart_never_fails(seeds):
     assert z.max() < 4.5, z.max()
 
 
+def test_a_system_with_branches_far_apart_refines_from_its_closed_form():
+    # Branches 1.3 apart everywhere on [-2 h_m, 2 h_m] (n = 2, m = 3, h_m = 3, T = 6000):
+    # each branch decides the output on one side of the staircase only, and its values on
+    # the other side are extrapolations that once crossed for free and made every run fail.
+    # Three draws at noise std 0.2 (benchmarks/paper_valid_system.py: 80 of 80 at 0.05 and
+    # 0.2): a success at the cost the refinement from the true system reaches.
+    c1 = np.array([-0.65, 0.5, 0.02])
+    truth = hbjax.Hammerstein(hbjax.Backlash(c1, c1 + [1.3, 0.0, 0.0]),
+                              hbjax.ARX([-1.2, 0.35], [0.5, 0.3]))
+    design, T, std = hbjax.GiriDesign(2, 3, 3.0), 6000, 0.2
+    inputs = [design.constant_input(T), design.binary_input(T), design.staircase_input(T)]
+    for k in range(3):
+        rng = np.random.default_rng(70 + k)
+        records = [(v, np.asarray(hbjax.simulate(truth, v, std * rng.standard_normal(T))))
+                   for v in inputs]
+        giri = hbjax.identify_giri(design, *[y for _, y in records])
+        ref = hbjax.refine(giri.model, records, h_m=3.0)  # throw=True
+        from_truth = hbjax.refine(hbjax.normalise(truth, 3.0), records, h_m=3.0)
+        excess = (float(ref.stats["cost"]) - float(from_truth.stats["cost"])) \
+            * float(ref.stats["samples"]) / std**2
+        assert excess <= 1.0, (k, excess)
+        assert not bool(ref.branches_cross)
+
+
 def test_extrapolated_ranges_are_reported():
     records = quickstart_records(15)
     giri = hbjax.identify_giri(DESIGN, *[y for _, y in records])
