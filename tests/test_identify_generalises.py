@@ -235,7 +235,8 @@ def test_closing_loops_refined_from_the_truth_stay_at_its_cost():
         # one shape (na = nb = 2, m = 3, T = 3000): one compilation for the four systems
         sys, v, y, sigma = _crossing_case(rng, n=2, m=3, length=3000)
         truth = to_hbjax(sys)
-        res = hbjax.refine(truth, [(v, y)], throw=False)
+        # (where the optimum is, not whether its loop is pinned: tests/test_closing_loops.py)
+        res = hbjax.refine(truth, [(v, y)], loop_tolerance=float("inf"), throw=False)
         if res.message != "success":
             continue  # a refusal is allowed; a success must be at the optimum
         p = len(sys["a"]) + len(sys["b"]) + 2 * len(sys["c1"]) - 1
@@ -261,7 +262,8 @@ def test_fit_on_crossing_loops_reports_success_only_at_the_optimum():
     for i in range(6):
         sys, v, y, sigma = _crossing_case(rng, n=1, m=4, length=4000)
         res = hbjax.fit([(v, y)], na=sys["na"], nb=len(sys["b"]), m=4,
-                        key=jax.random.PRNGKey(i), throw=False, progress=False)
+                        key=jax.random.PRNGKey(i), loop_tolerance=float("inf"), throw=False,
+                        progress=False)
         if res.message != "success":
             continue  # a refusal is allowed; a success must be at the optimum
         p = sys["na"] + len(sys["b"]) + 2 * 4 - 1

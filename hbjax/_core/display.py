@@ -122,6 +122,7 @@ FIGURES = (
     ("whiteness_p", "p-values of residual whiteness, independence"),
     ("stable", "A stable (A3)"),
     ("branches_cross", "branches cross on the data"),
+    ("loop_spread", "free-run spread where the loop closes (%)"),
     ("stats.cost", "cost (mean squared residual)"),
     ("stats.initial_cost", "initial cost"),
     ("stats.steps", "optimiser steps"),

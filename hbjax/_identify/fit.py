@@ -36,6 +36,7 @@ from .quality import SIM_FIT_FLOOR
 from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
 from .refine import check_floor, refine_traceable
+from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
 from .refine_result import AbstractRefinement, RefinementError
 
 
@@ -52,7 +53,8 @@ class FitResult(AbstractRefinement):
       ``no_input_effect`` / ``poor_fit`` when none is).
     - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
       `stable`, `identified` (and `unidentified`), `active_ranges`, `data_range` (and
-      `extrapolated`), `core_finish`, `residual_p` (and `noise_limited`): as :class:`RefineResult`, for the chosen start.
+      `extrapolated`), `core_finish`, `residual_p` (and `noise_limited`), `loop_spread`,
+      `loop_tolerance`: as :class:`RefineResult`, for the chosen start.
     - `starts_costs`: mean squared residual reached from every start, shape ``(starts,)``
       (``inf`` where a start failed).
     - `starts_params`: the local optima, shape ``(starts, p)`` (flatten order).
@@ -96,7 +98,8 @@ def _chosen(r, recordings, na: int, nb: int, m: int) -> dict:
         stable=r.stable, identified=jnp.where(swap, ident[swap_perm(na, nb, m)], ident),
         active_ranges=jnp.where(swap, r.active_ranges[::-1], r.active_ranges),
         data_range=r.data_range, core_finish=r.core_finish, residual_p=r.residual_p,
-        min_sim_fit=r.min_sim_fit)
+        min_sim_fit=r.min_sim_fit, loop_spread=r.loop_spread,
+        loop_tolerance=r.loop_tolerance)
 
 
 def _starts_summary(ok, costs, params, best):
@@ -260,7 +263,8 @@ _polished_jit = eqx.filter_jit(polished_best)
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         criterion: str = "prediction", max_steps: int = 256,
         min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "estimate",
-        throw: bool = True, progress=True) -> FitResult:
+        loop_tolerance: float = LOOP_TOLERANCE, throw: bool = True,
+        progress=True) -> FitResult:
     """Identify an HB-Hammerstein model from ordinary recordings (steps, multisines, random
     levels; no special input), by multi-start nonlinear least squares.
 
@@ -309,7 +313,13 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       ``"zero"`` (the paper's convention); see :func:`hbjax.refine`. With ``"estimate"``
       the criterion leaves the unknown past out and `sim_fit` starts from the initial
       state :func:`hbjax.estimate_initial_state` finds.
-    - `throw`: raise :class:`hbjax.RefinementError` if no start succeeded.
+    - `loop_tolerance`: as in :func:`hbjax.refine`: the best start, where its loop closes
+      inside the data, is a success only if its own covariance predicts a free-run fit
+      shortfall of at most this many percent (``RESULTS.loop_unresolved`` otherwise; the
+      starts are chosen before this judgement, so it never trades the optimum for a
+      worse start).
+    - `throw`: raise :class:`hbjax.RefinementError` if no start succeeded, or the best
+      one's loop is not pinned (``RESULTS.loop_unresolved``).
     - `progress`: a progress bar (``tqdm.auto``, on stderr) once the fit has run for more
       than 2 s on a terminal or in Jupyter; ``False`` silences it, a dict passes options
       to tqdm (``docs/performance.md``).
@@ -329,6 +339,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     check_criterion(criterion)
     check_initial_state(initial_state)
     check_key(key)
+    loop_tolerance = check_loop_tolerance(loop_tolerance)
     recs = as_recordings(recordings)
     q = na + nb + 2 * m - 1
     if total_samples(recs) <= 2 * q:
@@ -354,10 +365,13 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                               initial_state=initial_state)
         if not traced and gain_vanishes(res.model):
             res = better_in_paper_gauge(res, recs, key, _fit_jit, _polished_jit, options)
+        res = judge_loop(res, recs, loop_tolerance)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
+    if throw and res.result == RESULTS.loop_unresolved:
+        raise RefinementError(f"fit: the best start {res.message}.")
     if throw and res.result != RESULTS.successful:
         if all(float(np.ptp(np.asarray(v))) == 0.0 for v, _ in recs):
             # the generic advice (slow poles, other starts) does not apply: nothing moved

@@ -27,6 +27,7 @@ from .quality import SIM_FIT_FLOOR
 from .recordings import (as_recordings, check_branch_degree, check_criterion, check_h_m, check_model,
                          total_samples)
 from .refine_band import best_of_core_start, labelled_from
+from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
 from .refine_kinks import escape_kinks
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
@@ -247,7 +248,8 @@ def _restarted(res, records, recs, restarts, options):
     na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
     alternative = fit(records, na=na, nb=nb, m=m, key=jax.random.PRNGKey(0), starts=restarts,
                       criterion=options["criterion"], initial_state=options["initial_state"],
-                      min_sim_fit=options["min_sim_fit"], throw=False, progress=False)
+                      min_sim_fit=options["min_sim_fit"], loop_tolerance=float("inf"),
+                      throw=False, progress=False)
     if int(code(alternative.result)) != int(code(RESULTS.successful)):
         return res
     h_m = options["h_m"]
@@ -263,7 +265,8 @@ def _restarted(res, records, recs, restarts, options):
 def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m=None,
            max_steps: int = 256, rtol: float = 1e-7, atol: float = 1e-7,
            min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "zero",
-           restarts: int = AUTO_RESTARTS, throw: bool = True) -> RefineResult:
+           restarts: int = AUTO_RESTARTS, loop_tolerance: float = LOOP_TOLERANCE,
+           throw: bool = True) -> RefineResult:
     """Refine an HB-Hammerstein model on recorded data by nonlinear least squares.
 
     Minimises, with :class:`optimistix.LevenbergMarquardt` through the differentiable
@@ -355,6 +358,12 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       the true system's cost in all 9 (``benchmarks/paper_local_minima.py``). On records
       the model structure cannot describe (real data) the tests always reject, so every
       call then also pays for the multi-start fit.
+    - `loop_tolerance`: where the branches cross at recorded inputs and that decides
+      outputs (a hysteresis loop closing inside the data), the largest free-run fit
+      shortfall (%) the estimate's own covariance may predict on the estimation inputs
+      for a success; above it the result is ``RESULTS.loop_unresolved`` (``.loop_spread``;
+      :mod:`hbjax._identify.loop`). Default 1 % (a 99 % free-run fit); ``inf`` accepts
+      any closing loop.
     - `throw`: raise :class:`RefinementError` if the result is not a success (default);
       otherwise inspect ``.result`` / ``.message``.
 
@@ -382,6 +391,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     check_initial_state(initial_state)
     throw = check_bool(throw, "throw")
     restarts = positive_int(restarts, "restarts", minimum=0)
+    loop_tolerance = check_loop_tolerance(loop_tolerance)
     options = dict(criterion=criterion, h_m=h_m, max_steps=max_steps,
                    rtol=positive_float(rtol, "rtol"), atol=positive_float(atol, "atol"),
                    min_sim_fit=min_sim_fit, initial_state=initial_state)
@@ -395,12 +405,14 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         res = escape_kinks(res, records, lambda start: _refine_jit(start, recs, **options))
     if restarts and not is_traced(res.result._value) and residuals_suspect(res, records, criterion):
         res = _restarted(res, records, recs, restarts, options)
+    res = judge_loop(res, records, loop_tolerance)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     # On the host: an eager `!=` of two enumeration items is a device dispatch.
     if throw and int(code(res.result)) != int(code(RESULTS.successful)):
         quality = res.result in (RESULTS.unstable, RESULTS.poor_fit, RESULTS.closing_loop,
-                                 RESULTS.branches_cross, RESULTS.no_input_effect)
+                                 RESULTS.branches_cross, RESULTS.no_input_effect,
+                                 RESULTS.loop_unresolved)
         raise RefinementError(
             f"refine ({criterion} criterion) "
             f"{'gave an unacceptable model' if quality else 'did not converge'}: {res.message} "

@@ -52,6 +52,8 @@ class AbstractRefinement(eqx.Module):
     core_finish: Bool[Array, ""]
     residual_p: Float[Array, " 3"]
     min_sim_fit: Float[Array, ""]
+    loop_spread: Float[Array, ""]
+    loop_tolerance: Float[Array, ""]
 
     @property
     def input_effect_p(self) -> Float[Array, ""]:
@@ -154,6 +156,11 @@ class RefineResult(AbstractRefinement):
       (`noise_limited`).
     - `min_sim_fit`: the floor (%) this result was judged against (the `min_sim_fit` it was
       asked for; the residual tests may overrule only the default floor).
+    - `loop_spread`: where the branches cross at recorded inputs and that decides outputs
+      (a hysteresis loop closing inside the data), the free-run fit shortfall (%) the
+      estimate's own covariance predicts on the estimation inputs; above the tolerance
+      `loop_tolerance` (%, default 1) the result is ``RESULTS.loop_unresolved``
+      (:mod:`hbjax._identify.loop`). Both NaN where not judged.
     - `criterion`, `gauge`, `initial_state`: what was minimised, how the gain ambiguity
       was fixed and whether the initial state was estimated.
     """
@@ -249,7 +256,9 @@ def finish(fitted, result, stats, cov, noise_std, par, recordings, criterion, jt
         data_range = jnp.stack([jnp.min(v_all), jnp.max(v_all)])
     return RefineResult(fitted, result, stats, cov, noise_std, closing, fits, pooled, stable,
                         ident, active, data_range, jnp.asarray(par.core), residual_p,
-                        jnp.asarray(min_sim_fit, pooled.dtype), criterion,
+                        jnp.asarray(min_sim_fit, pooled.dtype),
+                        jnp.full((), jnp.nan, pooled.dtype), jnp.full((), jnp.nan, pooled.dtype),
+                        criterion,
                         par.gauge, par.initial_state)
 
 
@@ -266,6 +275,9 @@ def describe(res) -> str:
         fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(res.sim_fit)))
         text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, per record: "
                  f"{fits}; floor {float(res.min_sim_fit):g} %)")
+    elif res.result == RESULTS.loop_unresolved:
+        text += (f" (free-run spread {float(res.loop_spread):.3g} % of the output's spread, "
+                 f"tolerance {float(res.loop_tolerance):g} %)")
     elif res.result == RESULTS.unstable:
         text += f" (largest pole modulus {res.model.arx.pole_radius():.6g})"
     return text

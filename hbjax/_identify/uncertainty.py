@@ -37,12 +37,20 @@ def free_run_std(model: Hammerstein, covariance: Float[Array, "p p"], v, *, u0=0
     if cov.shape != (theta.shape[0], theta.shape[0]):
         raise ValueError(f"`covariance` must be {theta.shape[0]} x {theta.shape[0]} (one row per "
                          f"parameter of `model`), got shape {cov.shape}.")
+    return jnp.sqrt(free_run_variance(model, cov, v, u0=u0, y0=y0))
+
+
+def free_run_variance(model: Hammerstein, covariance, v, *, u0=0.0, y0=None):
+    """``diag(J C J^T)`` of :func:`free_run_std` without its checks (traceable; ``inf``
+    where a parameter of infinite variance moves the output)."""
+    theta = flatten_params(model)
 
     def free_run(t):
         return simulate(unflatten_params(model, t), v, u0=u0, y0=y0)
 
     jac = jax.jacfwd(free_run)(theta)
+    cov = jnp.asarray(covariance)
     unknown = ~jnp.isfinite(jnp.diagonal(cov))
     var = jnp.einsum("tp,pq,tq->t", jac, jnp.where(jnp.isfinite(cov), cov, 0.0), jac)
     moved = jnp.any((jac != 0) & unknown[None, :], axis=1)
-    return jnp.where(moved, jnp.inf, jnp.sqrt(jnp.maximum(var, 0.0)))
+    return jnp.where(moved, jnp.inf, jnp.maximum(var, 0.0))
