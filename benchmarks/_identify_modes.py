@@ -53,10 +53,13 @@ def crlb_study(args):
     rows, t0 = [], time.time()
     level = args.noise_levels[0]
     i, skipped = -1, []
-    while len(rows) < args.systems:
+    only = getattr(args, "only", None)
+    while len(rows) < args.systems and (only is None or i < max(only)):
         i += 1
         sys_rng = np.random.default_rng(rng.integers(2**63))
         sys = random_paper_system(sys_rng)
+        if only is not None and i not in only:
+            continue  # (its random stream is drawn all the same: the others stay the same)
         truth = hbjax.normalise(to_hbjax(sys), sys["h_m"])
         theta0 = np.asarray(hbjax.flatten_params(truth))
         errors, failed, bound = [], 0, None

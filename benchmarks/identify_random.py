@@ -428,7 +428,11 @@ def main(argv=None):
                     help="efficiency: var/CRLB and bias per parameter (benchmarks/_identify_modes.py)")
     ap.add_argument("--readme", action="store_true", help="the README quickstart over --seeds seeds")
     ap.add_argument("--seeds", type=int, default=200, help="--readme: seeds 0..S-1")
+    ap.add_argument("--only", default=None, metavar="I,J,...",
+                    help="--crlb: study only these systems of the seed's sequence (the same "
+                         "systems and draws as in the full study)")
     args = ap.parse_args(argv)
+    args.only = None if args.only is None else sorted({int(i) for i in args.only.split(",")})
     if args.crlb or args.readme:
         return efficiency_modes(args, argv)
     if args.fit and args.closing:

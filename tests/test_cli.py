@@ -269,3 +269,13 @@ def test_identify_fit_on_ordinary_recordings(tmp_path, system):
     model = hbjax.load_model(tmp_path / "fit.json")
     np.testing.assert_allclose(hbjax.flatten_params(model),
                                hbjax.flatten_params(hbjax.normalise_static_gain(system)), atol=0.05)
+
+
+def test_identify_fit_loop_tolerance_is_checked_as_typed(tmp_path, system):
+    v = np.repeat(np.random.default_rng(2).uniform(-6, 6, 50), 6)
+    hbjax.save_recording(tmp_path / "r.csv", hbjax.Recording(v, np.asarray(hbjax.simulate(system, v))))
+    proc = run("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, "r.csv", "--loop-tolerance", 0,
+               "--out", "fit.json", cwd=tmp_path, check=False)
+    assert proc.returncode == 1, proc.stderr
+    assert "`--loop-tolerance` must be a positive number" in proc.stderr
+    assert not (tmp_path / "fit.json").exists()

@@ -354,6 +354,8 @@ def cmd_identify_fit(args) -> int:
     _check_outputs(args, {"--out": args.out}, inputs=args.records)  # before the long part
     records = [_read_recording(path, args) for path in args.records]
     options = {} if args.max_steps is None else {"max_steps": args.max_steps}
+    if args.loop_tolerance is not None:
+        options["loop_tolerance"] = args.loop_tolerance
     result = fit(
         [(r.v, r.y) for r in records], na=args.na, nb=args.nb, m=args.m,
         key=jax.random.key(args.seed), starts=args.starts, criterion=args.criterion,

@@ -269,6 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="estimate the initial state (default) or start from rest at zero")
     fitp.add_argument("--max-steps", type=int, default=None,
                       help="Levenberg-Marquardt steps per start (default: hbjax.fit's)")
+    fitp.add_argument("--loop-tolerance", type=float, default=None,
+                      help="largest free-run spread (%%) a loop closing inside the data may "
+                           "keep for a success (default: hbjax.fit's, 1; inf accepts any)")
     fitp.add_argument("--out", required=True, help="model file to write (JSON)")
     _force(fitp)
     fitp.set_defaults(func=commands.cmd_identify_fit)

@@ -358,12 +358,13 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       the true system's cost in all 9 (``benchmarks/paper_local_minima.py``). On records
       the model structure cannot describe (real data) the tests always reject, so every
       call then also pays for the multi-start fit.
-    - `loop_tolerance`: where the branches cross at recorded inputs and that decides
+    - `loop_tolerance`: where the branches cross at recorded inputs where both decide
       outputs (a hysteresis loop closing inside the data), the largest free-run fit
       shortfall (%) the estimate's own covariance may predict on the estimation inputs
       for a success; above it the result is ``RESULTS.loop_unresolved`` (``.loop_spread``;
-      :mod:`hbjax._identify.loop`). Default 1 % (a 99 % free-run fit); ``inf`` accepts
-      any closing loop.
+      :mod:`hbjax._identify.loop`). Judged for the prediction criterion where the one-step
+      errors pass the residual tests (the covariance then measures the error). Default
+      1 % (a 99 % free-run fit); ``inf`` accepts any closing loop.
     - `throw`: raise :class:`RefinementError` if the result is not a success (default);
       otherwise inspect ``.result`` / ``.message``.
 

@@ -156,8 +156,9 @@ class RefineResult(AbstractRefinement):
       (`noise_limited`).
     - `min_sim_fit`: the floor (%) this result was judged against (the `min_sim_fit` it was
       asked for; the residual tests may overrule only the default floor).
-    - `loop_spread`: where the branches cross at recorded inputs and that decides outputs
-      (a hysteresis loop closing inside the data), the free-run fit shortfall (%) the
+    - `loop_spread`: where the branches cross at recorded inputs where both decide outputs
+      (a hysteresis loop closing inside the data; prediction criterion, one-step errors
+      passing the residual tests), the free-run fit shortfall (%) the
       estimate's own covariance predicts on the estimation inputs; above the tolerance
       `loop_tolerance` (%, default 1) the result is ``RESULTS.loop_unresolved``
       (:mod:`hbjax._identify.loop`). Both NaN where not judged.
