@@ -2,14 +2,15 @@
 
 Where the branches meet or cross at recorded inputs where both decide outputs, and that
 changes the output (the core operator ``L = min(P1, P2)``, ``H = max(P1, P2)`` of
-:func:`hbjax.simulate` gives another output there than a band that stays open), every free run through the closing point
-depends on where exactly the branches meet. On random closing-loop systems at 1 % equation
-noise the fits at the optimum missed a 99 % validation fit in 13 of 32 runs, and the
-estimate's own covariance propagated to its free run predicted that shortfall (correlation
-0.71-0.86 in log, median ratio 0.97-1.10; ``benchmarks/closing_uncertainty.py``): those
-records do not pin the loop, and saying *success* there would call a model good that the
-data cannot vouch for. Such a result is ``RESULTS.loop_unresolved`` instead, with its
-figure in ``.loop_spread``; the model is still returned (``throw=False``).
+:func:`hbjax.simulate` gives another output there than a band that stays open), every free
+run through the closing point depends on where exactly the branches meet. On random
+closing-loop systems at 1 % equation noise the fits at the optimum missed a 99 % validation
+fit in 13 of 32 runs, and the estimate's own covariance propagated to its free run
+predicted that shortfall (correlation 0.71-0.86 in log, median ratio 0.97-1.10;
+``benchmarks/closing_uncertainty.py``): those records do not pin the loop, and saying
+*success* there would call a model good that the data cannot vouch for. Such a result is
+``RESULTS.loop_unresolved`` instead, with its figure in ``.loop_spread``; the model is
+still returned (``throw=False``).
 
 An extrapolated branch that crosses outside the inputs where both branches are active
 (the paper's staircase: ``P1`` beyond the levels it is active on) does not close the loop
@@ -31,8 +32,8 @@ from .criteria import PREDICTION, lower_is_p1, unpack, where_valid
 from .quality import _compare_operators
 from .uncertainty import free_run_variance
 
-# The issue this module answers asks a closing loop's validation free run to fit to 99 %:
-# a free-run spread of 1 % of the output's own spread is that target's width.
+# A closing loop is asked to reach a 99 % free-run fit on validation records
+# (benchmarks/identify_random.py --closing): a spread of 1 % of the output's is its width.
 LOOP_TOLERANCE = 1.0
 
 
@@ -101,8 +102,6 @@ def check_loop_tolerance(loop_tolerance) -> float:
 
 _loop_closes_jit = jax.jit(loop_closes)
 _errors_white_jit = jax.jit(errors_white)
-
-
 _spread_jit = jax.jit(free_run_spread)
 
 
