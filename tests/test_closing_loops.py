@@ -72,20 +72,22 @@ def test_a_closing_loop_is_a_success_only_where_the_records_pin_it():
 
 @pytest.mark.slow
 def test_refine_judges_the_loop_the_same_under_jit():
-    """A refused closing loop: `refine` eager and under `jax.jit` give the same code and
-    spread (to 1 %: the eager call solves on records padded to a bucket and may leave a
-    kink, the traced one does neither), and `loop_tolerance=inf` accepts the same model."""
+    """A refused closing loop: `refine(..., loop_tolerance=1.0)` eager and under `jax.jit`
+    give the same code and spread (to 1 %: the eager call solves on records padded to a
+    bucket and may leave a kink, the traced one does neither), and refine's default
+    (``inf``) accepts the same model and reports the same spread."""
     rng = np.random.default_rng(54)
     sys, v, y, _ = _closing_record(rng, T=1500, noise=0.03)
     start = hbjax.normalise_static_gain(to_hbjax(sys))
-    eager = hbjax.refine(start, [(v, y)], restarts=0, throw=False)
+    eager = hbjax.refine(start, [(v, y)], restarts=0, loop_tolerance=1.0, throw=False)
     assert eager.result == hbjax.RESULTS.loop_unresolved, eager.message
-    traced = jax.jit(lambda vv, yy: hbjax.refine(start, [(vv, yy)], restarts=0, throw=False))(v, y)
+    traced = jax.jit(lambda vv, yy: hbjax.refine(start, [(vv, yy)], restarts=0,
+                                                 loop_tolerance=1.0, throw=False))(v, y)
     assert traced.result == hbjax.RESULTS.loop_unresolved
     assert float(traced.loop_spread) == pytest.approx(float(eager.loop_spread), rel=1e-2)
-    accepted = hbjax.refine(start, [(v, y)], restarts=0, loop_tolerance=float("inf"),
-                            throw=False)
+    accepted = hbjax.refine(start, [(v, y)], restarts=0, throw=False)
     assert accepted.message == "success"
+    assert float(accepted.loop_spread) == pytest.approx(float(eager.loop_spread), rel=1e-9)
     np.testing.assert_allclose(np.asarray(hbjax.flatten_params(accepted.model)),
                                np.asarray(hbjax.flatten_params(eager.model)), rtol=1e-9)
 
@@ -100,7 +102,7 @@ def test_an_extrapolated_crossing_of_the_paper_class_is_not_judged():
                                         draws=14, T=3000)
     (v1, y1), (v2, y2), (v3, y3) = records
     giri = hbjax.identify_giri(design, y1, y2, y3, v1=v1, v2=v2, v3=v3)
-    res = hbjax.refine(giri.model, records, h_m=sys["h_m"])
+    res = hbjax.refine(giri.model, records, h_m=sys["h_m"], loop_tolerance=1.0)
     assert res.message == "success"
     assert bool(res.branches_cross)
     assert np.isnan(float(res.loop_spread))

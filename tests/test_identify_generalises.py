@@ -235,8 +235,7 @@ def test_closing_loops_refined_from_the_truth_stay_at_its_cost():
         # one shape (na = nb = 2, m = 3, T = 3000): one compilation for the four systems
         sys, v, y, sigma = _crossing_case(rng, n=2, m=3, length=3000)
         truth = to_hbjax(sys)
-        # (where the optimum is, not whether its loop is pinned: tests/test_closing_loops.py)
-        res = hbjax.refine(truth, [(v, y)], loop_tolerance=float("inf"), throw=False)
+        res = hbjax.refine(truth, [(v, y)], throw=False)
         if res.message != "success":
             continue  # a refusal is allowed; a success must be at the optimum
         p = len(sys["a"]) + len(sys["b"]) + 2 * len(sys["c1"]) - 1

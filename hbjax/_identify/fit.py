@@ -313,11 +313,12 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       ``"zero"`` (the paper's convention); see :func:`hbjax.refine`. With ``"estimate"``
       the criterion leaves the unknown past out and `sim_fit` starts from the initial
       state :func:`hbjax.estimate_initial_state` finds.
-    - `loop_tolerance`: as in :func:`hbjax.refine`: the best start, where its loop closes
-      inside the data, is a success only if its own covariance predicts a free-run fit
-      shortfall of at most this many percent (``RESULTS.loop_unresolved`` otherwise; the
-      starts are chosen before this judgement, so it never trades the optimum for a
-      worse start).
+    - `loop_tolerance`: as in :func:`hbjax.refine` (default here 1 %): the best start,
+      where its loop closes inside the data, is a success only if its own covariance
+      predicts a free-run fit shortfall of at most this many percent
+      (``RESULTS.loop_unresolved`` otherwise; the starts are chosen before this
+      judgement, so it never trades the optimum for a worse start); ``inf`` accepts any
+      closing loop.
     - `throw`: raise :class:`hbjax.RefinementError` if no start succeeded, or the best
       one's loop is not pinned (``RESULTS.loop_unresolved``).
     - `progress`: a progress bar (``tqdm.auto``, on stderr) once the fit has run for more

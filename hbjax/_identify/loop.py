@@ -110,7 +110,8 @@ def judge_loop(res, recordings, tolerance=LOOP_TOLERANCE):
     filled in and its result ``RESULTS.loop_unresolved`` where it was a success of the
     prediction criterion whose loop closes inside the data (:func:`loop_closes`), whose
     errors pass the residual tests (:func:`errors_white`: only then does its covariance
-    measure its error) and whose :func:`free_run_spread` exceeds `tolerance` (percent).
+    measure its error) and whose :func:`free_run_spread` is finite and exceeds `tolerance`
+    (percent).
 
     Not judged (``loop_spread`` NaN): the simulation criterion (its covariance assumes
     white output noise, which a closing-loop record's equation noise is not) and a model
@@ -138,6 +139,9 @@ def judge_loop(res, recordings, tolerance=LOOP_TOLERANCE):
             return res
         need = True
         spread = jnp.asarray(_spread_jit(res.model, res.covariance, recordings), nan.dtype)
-    result = RESULTS.where(need & ~(spread <= tolerance), RESULTS.loop_unresolved, res.result)
+    # An infinite spread is a parameter the data do not identify moving the free run
+    # (listed in `.unidentified`): the covariance cannot measure the loop there.
+    result = RESULTS.where(need & jnp.isfinite(spread) & (spread > tolerance),
+                           RESULTS.loop_unresolved, res.result)
     return dataclasses.replace(res, result=result, loop_spread=spread,
                                loop_tolerance=jnp.asarray(tolerance, nan.dtype))
