@@ -119,7 +119,8 @@ def judge_loop(res, recordings, tolerance=LOOP_TOLERANCE):
     precision matters (the Cascaded Tanks' fitted loop closes inside the data; its
     free-run error is structural, ``benchmarks/RESULTS.md``). Eager results run the
     tests and the Jacobian only where the loop closes; traced ones under ``lax.cond``."""
-    recordings = tuple(recordings)
+    # (NumPy inputs beside a traced output: indexing a NumPy array with a tracer fails)
+    recordings = tuple(tuple(jnp.asarray(a) for a in rec) for rec in recordings)
     nan = jnp.full((), jnp.nan, res.sim_fit_pooled.dtype)
     if res.criterion != PREDICTION:
         return res
