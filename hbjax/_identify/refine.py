@@ -410,7 +410,8 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         res = escape_kinks(res, records, lambda start: _refine_jit(start, recs, **options))
     if restarts and not is_traced(res.result._value) and residuals_suspect(res, records, criterion):
         res = _restarted(res, records, recs, restarts, options)
-    res = judge_loop(res, records, loop_tolerance)
+    # on the bucket-padded records: a record of a new length compiles nothing new
+    res = judge_loop(res, recs, loop_tolerance)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     # On the host: an eager `!=` of two enumeration items is a device dispatch.
