@@ -366,7 +366,9 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       errors pass the residual tests (the covariance then measures the error) and the
       spread is finite. Default ``inf``: refine does not refuse a closing loop (on the
       paper's experiments a refined extrapolation crosses inside the data now and then:
-      at 1 % the judgement refused 35 of 2100 valid paper-mode successes); pass
+      at 1 % a first version of the rule, without the residual-test and finite-spread
+      conditions, refused 35 of 2100 valid paper-mode successes; the final rule would
+      still refuse at most one of those 35, not measured on a whole study); pass
       ``loop_tolerance=1.0`` (a 99 % free-run fit, :func:`hbjax.fit`'s default) to judge;
       ``.loop_spread`` is reported either way.
     - `throw`: raise :class:`RefinementError` if the result is not a success (default);
