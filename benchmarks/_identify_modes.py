@@ -25,7 +25,8 @@ import numpy as np
 from scipy.stats import chi2, norm
 
 import hbjax
-from tests.generators.paper_class import predict_numpy, random_paper_system, simulate_numpy, to_hbjax
+from tests.generators.paper_class import predict_numpy, random_paper_system, to_hbjax
+from tests.generators.paper_runs import paper_records
 
 
 def _model_dict(model):
@@ -36,15 +37,6 @@ def _model_dict(model):
 def _ssr(sys, records):
     return float(sum(np.sum((np.asarray(y) - predict_numpy(sys, np.asarray(v), np.asarray(y))) ** 2)
                      for v, y in records))
-
-
-def _experiments(sys, rng, level, T):
-    design = hbjax.GiriDesign(n=sys["n"], m=sys["m"], h_m=sys["h_m"])
-    inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input, design.staircase_input)]
-    free = [simulate_numpy(sys, v)[0] for v in inputs]
-    sigma = level * float(np.ptp(np.concatenate(free)))
-    ys = [simulate_numpy(sys, v, sigma * rng.normal(size=T))[0] for v in inputs]
-    return design, list(zip(inputs, ys)), sigma
 
 
 def crlb_study(args):
@@ -64,8 +56,9 @@ def crlb_study(args):
         theta0 = np.asarray(hbjax.flatten_params(truth))
         errors, failed, bound, active = [], 0, None, None
         for d in range(args.draws):
-            design, records, sigma = _experiments(sys, np.random.default_rng(sys_rng.integers(2**63)),
-                                                  level, args.T)
+            design, records, sigma = paper_records(sys, np.random.default_rng(sys_rng.integers(2**63)),
+                                                   level, args.T,
+                                                   noise_at=getattr(args, "noise_at", "equation"))
             if bound is None:
                 try:
                     bound_cov = np.asarray(hbjax.crlb(truth, records, noise_std=sigma,
@@ -181,7 +174,8 @@ def determined_values(na, nb, m, active, points=5):
 
 def crlb_markdown(rows, args):
     lines = [
-        f"Noise std {args.noise_levels[0]:g} x the output range, T = {args.T} samples per "
+        f"Noise std {args.noise_levels[0]:g} x the output range (at the "
+        f"{getattr(args, 'noise_at', 'equation')}), T = {args.T} samples per "
         f"experiment, {args.draws} realisations per system (`identify_giri` then `refine`"
         f"{f'(..., restarts={args.restarts})' if args.restarts is not None else ''}, "
         f"paper gauge); bound: `hbjax.crlb` at the true system. Allowances: "

@@ -12,20 +12,42 @@ import hbjax
 from .paper_class import random_paper_system, simulate_numpy
 
 
-def paper_records(sys_, rng, level, T):
+def noise_gain(a, n=100_000):
+    """``||1/A||_2``: the output's noise std per unit of equation-noise std (the root sum of
+    squares of ``1/A``'s impulse response, summed until it has decayed)."""
+    a = np.asarray(a, float)
+    h = np.zeros(n)
+    h[0] = 1.0
+    for t in range(1, n):
+        k = min(len(a), t)
+        h[t] = -np.dot(a[:k], h[t - 1::-1][:k])
+        if t > 50 and abs(h[t]) < 1e-13 * abs(h[:t]).max():
+            break
+    return float(np.sqrt(np.sum(h * h)))
+
+
+def paper_records(sys_, rng, level, T, *, noise_at="equation"):
     """``(design, records, sigma)``: the paper's three experiments of ``T`` samples for the
-    system ``sys_`` with white equation noise of std ``level`` x the range of the
-    noise-free outputs, drawn from ``rng``."""
+    system ``sys_`` with white equation noise ``xi`` drawn from ``rng``; ``sigma`` is its std.
+
+    `noise_at`: ``"equation"``, ``sigma = level`` x the range of the noise-free outputs;
+    ``"output"``, the noise's part of the output (``xi`` through ``1/A``) has that std, so
+    ``sigma = level x range / ||1/A||_2`` (:func:`noise_gain`: a slow ``A`` integrates the
+    equation noise, and at the same ``sigma`` its output is mostly noise)."""
+    if noise_at not in ("equation", "output"):
+        raise ValueError(f"noise_at must be 'equation' or 'output', got {noise_at!r}")
     design = hbjax.GiriDesign(n=sys_["n"], m=sys_["m"], h_m=sys_["h_m"])
     inputs = [np.asarray(f(T)) for f in (design.constant_input, design.binary_input,
                                          design.staircase_input)]
     free = [simulate_numpy(sys_, v)[0] for v in inputs]
     sigma = level * float(np.ptp(np.concatenate(free)))
+    if noise_at == "output":
+        sigma /= noise_gain(sys_["a"])
     ys = [simulate_numpy(sys_, v, sigma * rng.normal(size=T))[0] for v in inputs]
     return design, list(zip(inputs, ys)), sigma
 
 
-def reproduce(system, level, draw, *, seed, levels, draws, T):
+def reproduce(system, level, draw, *, seed, levels, draws, T, noise_at="equation"):
     """``(system, design, records, sigma)`` of run ``(system, level, draw)`` of the study
     with `seed`, noise `levels` and `draws` per level (:func:`paper_records`)."""
     rng = np.random.default_rng(seed)
@@ -36,7 +58,7 @@ def reproduce(system, level, draw, *, seed, levels, draws, T):
         for d in range(draws):
             run_rng = np.random.default_rng(sys_rng.integers(2**63))
             if lv == level and d == draw:
-                return (sys_, *paper_records(sys_, run_rng, level, T))
+                return (sys_, *paper_records(sys_, run_rng, level, T, noise_at=noise_at))
     raise ValueError(f"no run ({system}, {level}, {draw}) in levels {levels} x {draws} draws")
 
 
