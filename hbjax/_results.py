@@ -69,6 +69,13 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "output's spread): the records do not pin the loop; record longer, with less noise "
         "or more excitation around the meeting point (the model is returned with throw=False)"
     )
+    branches_undetermined = (
+        "the records do not determine the branches: the input holds too few distinct values "
+        "where a branch decides the output (or never moves that branch), so some branch "
+        "coefficients are unidentified (see .unidentified); the model reproduces the records "
+        "but not the branches between or beyond the recorded values: record an input that "
+        "moves through more values, or lower m (the model is returned with throw=False)"
+    )
 
 
 def message(result) -> str:

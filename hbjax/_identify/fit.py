@@ -37,6 +37,7 @@ from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
 from .refine import check_floor, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
+from .undetermined import judge_branches
 from .refine_result import AbstractRefinement, RefinementError
 
 
@@ -355,10 +356,12 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                        initial_state=initial_state)
         traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
         res = _fit_jit(recs, key, polish=traced, **options)
-        # A closing start was solved on the core operator already.
-        best_closing = int(res.best_index) >= starts - closing_count(starts, m)
-        if not traced and ((bool(res.branches_cross) and not best_closing)
-                           or res.result != RESULTS.successful):
+        # A closing start was solved on the core operator already (under jit, fit_traceable
+        # polished the best start itself).
+        if not traced and (
+                (bool(res.branches_cross)
+                 and not int(res.best_index) >= starts - closing_count(starts, m))
+                or res.result != RESULTS.successful):
             # Only a loop closing inside the data (or no success) needs the core solve of
             # the best start: compiled on its own, from the starts' result.
             res = _polish_jit(res, recs, criterion=criterion, max_steps=max_steps,
@@ -366,13 +369,14 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                               initial_state=initial_state)
         if not traced and gain_vanishes(res.model):
             res = better_in_paper_gauge(res, recs, key, _fit_jit, _polished_jit, options)
-        res = judge_loop(res, recs, loop_tolerance)
+        res = judge_branches(judge_loop(res, recs, loop_tolerance))
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
-    if throw and res.result == RESULTS.loop_unresolved:
-        raise RefinementError(f"fit: the best start {res.message}.")
+    if throw and (res.result == RESULTS.loop_unresolved
+                  or res.result == RESULTS.branches_undetermined):
+        raise RefinementError(f"fit: the best start succeeded, but {res.message}.")
     if throw and res.result != RESULTS.successful:
         if all(float(np.ptp(np.asarray(v))) == 0.0 for v, _ in recs):
             # the generic advice (slow poles, other starts) does not apply: nothing moved

@@ -281,6 +281,8 @@ def describe(res) -> str:
                  f"tolerance {float(res.loop_tolerance):g} %)")
     elif res.result == RESULTS.unstable:
         text += f" (largest pole modulus {res.model.arx.pole_radius():.6g})"
+    elif res.result == RESULTS.branches_undetermined:
+        text += f" (unidentified: {', '.join(res.unidentified)})"
     return text
 
 
