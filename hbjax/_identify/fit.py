@@ -51,7 +51,9 @@ class FitResult(AbstractRefinement):
       only stable models with a significant input path whose free-run fit clears the
       floor (or whose residual tests say the noise explains it, see :func:`hbjax.refine`)
       are successes, so the best start is chosen among those (``RESULTS.unstable`` /
-      ``no_input_effect`` / ``poor_fit`` when none is).
+      ``no_input_effect`` / ``poor_fit`` when none is). The best start is then judged:
+      ``RESULTS.loop_unresolved`` where its loop closes inside the data unpinned,
+      ``RESULTS.branches_undetermined`` where the records do not determine its branches.
     - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
       `stable`, `identified` (and `unidentified`), `active_ranges`, `data_range` (and
       `extrapolated`), `core_finish`, `residual_p` (and `noise_limited`), `loop_spread`,
@@ -321,7 +323,9 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       judgement, so it never trades the optimum for a worse start); ``inf`` accepts any
       closing loop.
     - `throw`: raise :class:`hbjax.RefinementError` if no start succeeded, or the best
-      one's loop is not pinned (``RESULTS.loop_unresolved``).
+      one's loop is not pinned (``RESULTS.loop_unresolved``), or the records do not
+      determine its branches (``RESULTS.branches_undetermined``: a branch coefficient
+      unidentified, :mod:`hbjax._identify.undetermined`).
     - `progress`: a progress bar (``tqdm.auto``, on stderr) once the fit has run for more
       than 2 s on a terminal or in Jupyter; ``False`` silences it, a dict passes options
       to tqdm (``docs/performance.md``).
