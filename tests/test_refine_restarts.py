@@ -12,6 +12,22 @@ from tests.generators.paper_class import to_hbjax
 from tests.generators.paper_runs import reproduce
 
 
+def _paper_run(seed, system, level, draw, noise_at="equation"):
+    """A run of the paper-mode study: ``(records, h_m, closed-form start, its refinement
+    with restarts=0, the refinement from the true system, the allowance)``; the allowance
+    is ``sigma^2 chi2_p(0.99)`` in the mean squared residual."""
+    sys_, design, records, sigma = reproduce(system, level, draw, seed=seed,
+                                             levels=[0.01, 0.03, 0.05], draws=14, T=3000,
+                                             noise_at=noise_at)
+    h_m = sys_["h_m"]
+    start = hbjax.identify_giri(design, *(y for _, y in records)).model
+    plain = hbjax.refine(start, records, h_m=h_m, restarts=0, throw=False)
+    truth = hbjax.refine(hbjax.normalise(to_hbjax(sys_), h_m), records, h_m=h_m)
+    p = sys_["na"] + sys_["nb"] + 2 * sys_["m"] - 1
+    allowance = sigma**2 * chi2.ppf(0.99, p) / float(truth.stats["samples"])
+    return records, h_m, start, plain, truth, allowance
+
+
 def test_restarts_leave_the_local_minima_of_a_far_start():
     """``refine`` on paper-mode runs (the independent generator, the studies of
     ``benchmarks/identify_random.py``) whose closed-form start is so far off that the
@@ -27,15 +43,7 @@ def test_restarts_leave_the_local_minima_of_a_far_start():
     far = [(5, 4, 0.03, 7), (5, 43, 0.03, 11)]
     exercised = 0
     for seed, system, level, draw in far + [(3, 16, 0.01, 0)]:
-        sys_, design, records, sigma = reproduce(system, level, draw, seed=seed,
-                                                 levels=[0.01, 0.03, 0.05], draws=14, T=3000)
-        h_m = sys_["h_m"]
-        start = hbjax.identify_giri(design, *(y for _, y in records)).model
-        plain = hbjax.refine(start, records, h_m=h_m, restarts=0, throw=False)
-        truth = hbjax.refine(hbjax.normalise(to_hbjax(sys_), h_m), records, h_m=h_m)
-        p = sys_["na"] + sys_["nb"] + 2 * sys_["m"] - 1
-        # In the mean squared residual: sigma^2 chi2_p(0.99) over the residuals.
-        allowance = sigma**2 * chi2.ppf(0.99, p) / float(truth.stats["samples"])
+        records, h_m, start, plain, truth, allowance = _paper_run(seed, system, level, draw)
         above = float(plain.stats["cost"]) - float(truth.stats["cost"])
         default = hbjax.refine(start, records, h_m=h_m)  # throw=True
         assert float(default.stats["cost"]) - float(truth.stats["cost"]) <= allowance
@@ -59,14 +67,7 @@ def test_restarts_where_the_first_samples_show_the_initial_state_misplaced():
     (``refine``'s start-up test) call for the restarts, which reach the optimum."""
     from hbjax._identify.refine import startup_suspect
 
-    sys_, design, records, sigma = reproduce(20, 0.01, 3, seed=3, levels=[0.01, 0.03, 0.05],
-                                             draws=14, T=3000, noise_at="output")
-    h_m = sys_["h_m"]
-    start = hbjax.identify_giri(design, *(y for _, y in records)).model
-    plain = hbjax.refine(start, records, h_m=h_m, restarts=0, throw=False)
-    truth = hbjax.refine(hbjax.normalise(to_hbjax(sys_), h_m), records, h_m=h_m)
-    p = sys_["na"] + sys_["nb"] + 2 * sys_["m"] - 1
-    allowance = sigma**2 * chi2.ppf(0.99, p) / float(truth.stats["samples"])
+    records, h_m, start, plain, truth, allowance = _paper_run(3, 20, 0.01, 3, noise_at="output")
     assert plain.result == hbjax.RESULTS.successful
     assert float(plain.stats["cost"]) - float(truth.stats["cost"]) > allowance
     assert startup_suspect(plain, records)

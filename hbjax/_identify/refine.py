@@ -30,7 +30,7 @@ from .refine_band import best_of_core_start, labelled_from
 from .loop import check_loop_tolerance, judge_loop
 from .refine_kinks import escape_kinks
 from .refine_result import RefinementError, RefineResult, finish, summarise
-from .refine_solve import flat_residuals, gauge_transform, make_parametrisation, solve_criterion
+from .refine_solve import flat_residuals, gauge_transform, make_parametrisation
 from .stable import check_initial_state
 from .units import in_unit, model_in_unit, output_unit, result_from_unit
 
