@@ -6,8 +6,9 @@ levels (a PRBS of three levels, a two-level square wave) or one that never falls
 some branch coefficients unidentified (``std = inf``, listed in ``.unidentified``): the
 model then reproduces the records, but its branches between and beyond the recorded values
 are whatever the starts left there. On fresh inputs of the same kind, with other levels,
-such fits of random closing-loop and paper-class systems reached validation fits of 71 %
-(``benchmarks/RESULTS.md``, "Branches the records do not determine"). So :func:`hbjax.fit`
+10 of 12 such fits of random paper-class systems validated at 1.7-83.6 %, and two of
+random closing-loop systems at 71.0 and 98.6 % (``benchmarks/RESULTS.md``, "Branches the
+records do not determine"). So :func:`hbjax.fit`
 calls that ``RESULTS.branches_undetermined``, not a success; the model is still returned
 (``throw=False``). :func:`hbjax.refine` only reports the flags: it refines a model the
 caller chose, on records the caller designed.
