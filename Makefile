@@ -30,7 +30,7 @@ demo: $(BASE_STAMP)
 	$(BIN)/python -m hbjax demo --out demo_output --force
 
 test: $(TEST_STAMP)
-	$(BIN)/python -m pytest -q -p no:cacheprovider -n 2 --dist loadfile tests
+	$(BIN)/python -m pytest -q -p no:cacheprovider -n 2 --dist loadfile --durations=25 tests
 
 test-fast: $(TEST_STAMP)
 	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not slow" tests

@@ -28,7 +28,7 @@ from .recordings import (as_recordings, check_branch_degree, check_criterion, ch
                          total_samples)
 from .refine_band import best_of_core_start, labelled_from
 from .loop import check_loop_tolerance, judge_loop
-from .refine_kinks import escape_kinks
+from .refine_kinks import escape_kinks, escape_pushed_through
 from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation
 from .stable import check_initial_state
@@ -446,7 +446,8 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     res = _refine_jit(model, recs, **options)
     if not is_traced(res.result._value) and int(code(res.result)) in (
             int(code(RESULTS.successful)), int(code(RESULTS.branches_cross))):
-        res = escape_kinks(res, records, lambda start: _refine_jit(start, recs, **options))
+        again = lambda start: _refine_jit(start, recs, **options)  # noqa: E731
+        res = escape_pushed_through(escape_kinks(res, records, again), records, again)
     if restarts and not is_traced(res.result._value) and (
             residuals_suspect(res, records, criterion)
             or (criterion == PREDICTION and initial_state == "zero"

@@ -40,6 +40,9 @@ SEPARATIONS = (0.02, 0.1, -0.02, -0.1)
 MATERIAL = 1.0
 # Rounds of separation at most (each at least one refinement); measured: one to four.
 MAX_ROUNDS = 8
+# How far (fraction of the internal signal's spread) a branch is pushed through the other
+# in :func:`pushed_through`.
+PUSH = 0.1
 
 
 def held_apart(model: Hammerstein, records, separations):
@@ -69,8 +72,7 @@ def held_apart(model: Hammerstein, records, separations):
     scale = float(np.max(np.abs(v)))
     if not (np.isfinite(spread) and spread > 0 and scale > 0) or width[k] > TOUCH * spread:
         return None
-    powers = (v[k] / scale) ** np.arange(c1.size)
-    unit = spread * powers / (powers @ powers) / scale ** np.arange(c1.size)
+    unit = _unit_change(v, v[k], spread, c1.size)
 
     def moved(separation):
         shift = separation * unit
@@ -82,6 +84,76 @@ def held_apart(model: Hammerstein, records, separations):
     return [moved(x) for x in separations]
 
 
+def _unit_change(v, x, spread, degree):
+    """Least-squares change of branch coefficients (degree ``degree``) that moves the
+    branch by ``spread`` at ``x`` (in powers of ``v / max|v|``, so that no single power
+    carries it)."""
+    scale = float(np.max(np.abs(v)))
+    powers = (x / scale) ** np.arange(degree)
+    return spread * powers / (powers @ powers) / scale ** np.arange(degree)
+
+
+def pushed_through(res, records):
+    """Starts with one branch pushed through the other: for each branch that is an
+    extrapolation at some recorded inputs (``res.active_ranges``), the model with that
+    branch moved :data:`PUSH` x the internal signal's spread beyond the other branch at
+    the median of those inputs (a list of zero, one or two models).
+
+    Where a branch never decides the output, the cost is flat in its values as long as it
+    stays on its own side of the deciding branch, so a refinement cannot see an optimum in
+    which it crosses through and decides some outputs. Measured on the paper mode with the
+    noise at the output (``benchmarks/identify_random.py --noise-at output --seed 7``,
+    system 14, 5 %): the refinement stopped 73.6 ``sigma^2`` above the true system's cost
+    with every residual test passed, while the optimum (22.4 ``sigma^2`` below it) has the
+    falling branch deciding the three highest rising levels. Of 44 starts pushed through
+    at each recorded level (either branch, 2 % or 10 % of the spread), 41 reached 16-22
+    ``sigma^2`` below the true system's cost, the median level's among them."""
+    c1 = np.asarray(res.model.backlash.c1, float)
+    c2 = np.asarray(res.model.backlash.c2, float)
+    inputs = [np.asarray(v, float).ravel() for v, _ in records]
+    u = np.concatenate([np.asarray(play(res.model.backlash, v)) for v in inputs])
+    spread = float(np.ptp(u)) if u.size else 0.0
+    v = np.unique(np.concatenate(inputs))
+    if not (np.isfinite(spread) and spread > 0 and np.max(np.abs(v)) > 0):
+        return []
+    active = np.asarray(res.active_ranges, float)
+    poly = np.polynomial.polynomial.polyval
+    starts = []
+    for k, (own, other) in enumerate(((c1, c2), (c2, c1))):
+        lo, hi = active[k]
+        outside = v if not (np.isfinite(lo) and np.isfinite(hi)) else v[(v < lo) | (v > hi)]
+        if outside.size == 0:
+            continue
+        x = outside[(outside.size - 1) // 2]
+        gap = poly(x, other) - poly(x, own)
+        side = np.sign(gap) if gap != 0 else 1.0
+        change = (gap + side * PUSH * spread) * _unit_change(v, x, 1.0, own.size)
+        moved = (own + change, other) if k == 0 else (other, own + change)
+        starts.append(Hammerstein(type(res.model.backlash)(*moved), res.model.arx))
+    return starts
+
+
+def escape_pushed_through(res, records, refine_from):
+    """``res`` or the best successful refinement from :func:`pushed_through`'s starts
+    with a lower cost (one round; ``refine_from`` as in :func:`escape_kinks`)."""
+    best = res
+    for start in pushed_through(res, records):
+        again = refine_from(start)
+        if _better(again, best):
+            best = again
+    return best
+
+
+def _better(new, old):
+    """Whether refinement ``new`` is a success and ``old`` is not, or both are and ``new``
+    has the lower cost (by more than rounding)."""
+    ok = int(code(RESULTS.successful))
+    if int(code(new.result)) != ok:
+        return False
+    return int(code(old.result)) != ok or float(new.stats["cost"]) < float(
+        old.stats["cost"]) * (1 - 1e-6)
+
+
 def escape_kinks(res, records, refine_from):
     """``res`` or a successful refinement from its branches held apart at a touch
     (:func:`held_apart`) with a lower cost, repeated while the cost falls (at most
@@ -89,13 +161,6 @@ def escape_kinks(res, records, refine_from):
     ``refine_from(model)`` refines on the same records with the
     same options; a result that is not a success is left only for a success."""
     ok = int(code(RESULTS.successful))
-
-    def better(new, old):
-        if int(code(new.result)) != ok:
-            return False
-        return int(code(old.result)) != ok or float(new.stats["cost"]) < float(
-            old.stats["cost"]) * (1 - 1e-6)
-
     for _ in range(MAX_ROUNDS):
         starts = held_apart(res.model, records, SEPARATIONS)
         if starts is None:
@@ -103,7 +168,7 @@ def escape_kinks(res, records, refine_from):
         best = res
         for start in starts:
             again = refine_from(start)
-            if better(again, best):
+            if _better(again, best):
                 best = again
         if best is res:
             return res
