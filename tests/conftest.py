@@ -130,7 +130,8 @@ LONGEST_FIRST = (
     "test_diagnose_physics.py", "test_refine_buckets.py", "test_identify_generalises.py",
     "test_diagnose_output_map.py",
     "test_output_unit.py", "test_giri_band.py", "test_fit_gauge.py", "test_fit.py",
-    "test_architecture.py", "test_determinism.py", "test_adequacy.py",
+    "test_architecture.py", "test_determinism.py", "test_refine_restarts.py",
+    "test_docs_blocks.py", "test_adequacy.py",
 )
 
 
