@@ -63,9 +63,9 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "local optimum (try more starts: refine(..., restarts=64) or hbjax.fit)"
     )
     loop_unresolved = (
-        "the branches cross inside the recorded input range where that decides the output (a "
-        "hysteresis loop closing inside the data) and the estimate's own covariance leaves "
-        "its free run uncertain by more than the tolerance (see .loop_spread, % of the "
+        "the branches meet or cross inside the recorded input range where both decide "
+        "outputs (a hysteresis loop closing inside the data) and the estimate's own "
+        "covariance leaves its free run uncertain by more than the tolerance (see .loop_spread, % of the "
         "output's spread): the records do not pin the loop; record longer, with less noise "
         "or more excitation around the meeting point (the model is returned with throw=False)"
     )
