@@ -37,10 +37,10 @@ from .uncertainty import free_run_variance
 LOOP_TOLERANCE = 1.0
 # A loop that touches: the band narrower than this fraction of the internal signal's spread
 # at a recorded input where both branches decide outputs. Measured on the closing-loop
-# studies (seeds 0-2, 48 fits): the fitted bands of touching systems that neither cross nor
-# close came to 1.7e-6 - 3.1e-3 of the spread there, and two of them were successes short of
-# 99 % (98.5 and 98.0 %) with spreads of 2.8 %; open paper-class bands are at least 2 % of
-# the output's range wide (tests/generators/paper_class.py).
+# studies (seeds 0-2, 48 fits): the fitted bands that no crossing closed (so not judged
+# before) came to 1.7e-6 - 3.1e-3 of the spread there, and two of them were successes short
+# of 99 % (98.5 and 98.0 %) with spreads of 2.8 %; open paper-class bands are at least 2 %
+# of the output's range wide (tests/generators/paper_class.py).
 TOUCH_WIDTH = 5e-3
 
 

@@ -340,8 +340,12 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     labelled one can end in a poor local optimum. Where the result (a success, or
     ``branches_cross``) has an extrapolated branch touching the deciding one at a recorded
     input, a kink of the cost on which Levenberg-Marquardt can stop short of the optimum,
-    it is refined again from its branches held apart there while that lowers the cost
-    (:mod:`hbjax._identify.refine_kinks`; eager calls only). The returned model is therefore always exactly
+    it is refined again from its branches held apart there while that lowers the cost;
+    then each branch that is an extrapolation at some recorded inputs is pushed through
+    the other at the median of those inputs and refined again, kept where that is a
+    success with a lower cost (the cost is flat in an extrapolation that stays on its own
+    side, so no solve sees an optimum where it crosses and decides outputs;
+    :mod:`hbjax._identify.refine_kinks`; eager calls only). The returned model is therefore always exactly
     :func:`hbjax.simulate`'s model on the data; ``.extrapolated`` lists the branch ranges
     that are extrapolations, ``.branches_cross`` whether the branches meet at a recorded
     input. Orders are static; record lengths are not: an eager call pads each record to
