@@ -76,6 +76,14 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "but not the branches between or beyond the recorded values: record an input that "
         "moves through more values, or lower m (the model is returned with throw=False)"
     )
+    branches_between_levels = (
+        "the records determine the branches only at the recorded input values: between them, "
+        "where a branch decides the output, its uncertainty (the estimate's covariance) is "
+        "more than twice that at them (see .interpolation_ratio), as after an input of a few "
+        "levels; the model reproduces the records but an input of other values can simulate "
+        "far off: record an input that moves through more values, or lower m (the model is "
+        "returned with throw=False)"
+    )
 
 
 def message(result) -> str:

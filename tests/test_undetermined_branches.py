@@ -70,3 +70,37 @@ def test_the_judgement_under_jit_matches_the_eager_one():
     assert eager.result == hbjax.RESULTS.branches_undetermined, eager.message
     assert traced.result == hbjax.RESULTS.branches_undetermined
     assert tuple(traced.unidentified) == tuple(eager.unidentified)
+
+
+def _validation_fit(sys_, model, v):
+    truth, _ = simulate_numpy(sys_, v)
+    est = np.asarray(hbjax.simulate(model, v))
+    return 100.0 * (1.0 - np.linalg.norm(truth - est) / np.linalg.norm(truth - truth.mean()))
+
+
+def test_branches_known_only_at_the_recorded_levels_are_not_a_success():
+    """Random systems with m = 4 under an input of six levels: each branch decides the
+    output at enough levels for its coefficients to be identified, but between the levels
+    it is an interpolation the records leave open. Every success simulates a fresh input of
+    six *other* levels at 90 % or more against the true system; the fits refused with every
+    branch coefficient identified are those whose branch uncertainty between the levels is
+    more than twice that at them (``RESULTS.branches_between_levels``), and the ratio is
+    reported on every result."""
+    between, fits = 0, []
+    for seed in range(4):
+        rng = np.random.default_rng(200 + seed)
+        sys_ = random_paper_system(rng, n=2, m=4)
+        scale = 1.5 * sys_["h_m"]
+        v = _levels_input(rng, 3000, scale, 6)
+        res = hbjax.fit(_record(rng, v, sys_), na=2, nb=2, m=4, key=jax.random.PRNGKey(seed),
+                        starts=8, throw=False, progress=False)
+        fresh = _validation_fit(sys_, res.model, _levels_input(rng, 2000, scale, 6))
+        ratio = float(res.interpolation_ratio)
+        fits.append((res.message[:40], ratio, fresh))
+        if res.result == hbjax.RESULTS.successful:
+            assert fresh >= 90.0 and ratio <= 2.0, fits
+        elif res.result == hbjax.RESULTS.branches_between_levels:
+            assert ratio > 2.0 and not res.unidentified, fits
+            assert "times its largest at them" in res.message, res.message
+            between += 1
+    assert between >= 1, fits  # the rule reaches fits whose coefficients are identified

@@ -299,7 +299,8 @@ def test_select_structure_finds_true_orders():
         y, _ = pc.simulate_numpy(s, v, 0.01 * np.ptp(y0) * rng.normal(size=v.size))
         sel = hbjax.select_structure((v, y), na=range(1, 3), nb=1, m=[2, 3, 4],
                                      key=jax.random.PRNGKey(0), starts=8, progress=False)
-        assert len(sel.orders) == 6 and np.all(np.diff(sel.bic[sel.success]) >= 0)
+        assert len(sel.orders) == 6 and np.all(np.diff(sel.bic[sel.ranked]) >= 0)
+        assert np.all(sel.ranked[sel.success]) and (sel.best_model is None) != bool(sel.success[0])
         hits.append(sel.best == (1, 1, 3))
     assert sum(hits) >= 4, hits
 

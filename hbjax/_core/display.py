@@ -123,6 +123,7 @@ FIGURES = (
     ("stable", "A stable (A3)"),
     ("branches_cross", "branches cross on the data"),
     ("loop_spread", "free-run spread where the loop closes (%)"),
+    ("interpolation_ratio", "branch std between recorded inputs / at them"),
     ("stats.cost", "cost (mean squared residual)"),
     ("stats.initial_cost", "initial cost"),
     ("stats.steps", "optimiser steps"),

@@ -53,7 +53,14 @@ class FitResult(AbstractRefinement):
       are successes, so the best start is chosen among those (``RESULTS.unstable`` /
       ``no_input_effect`` / ``poor_fit`` when none is). The best start is then judged:
       ``RESULTS.loop_unresolved`` where its loop closes inside the data unpinned,
-      ``RESULTS.branches_undetermined`` where the records do not determine its branches.
+      ``RESULTS.branches_undetermined`` where the records do not determine its branches,
+      ``RESULTS.branches_between_levels`` where they determine them only at the recorded
+      inputs.
+    - `interpolation_ratio`: the larger over the two branches of a branch's largest
+      standard deviation between the recorded inputs (inside the range where it decides
+      the output) over its largest at them; 1 for an input that moves through its range,
+      above 2 (``RESULTS.branches_between_levels``) where the branches are known only at
+      the recorded levels; NaN where a parameter is unidentified.
     - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
       `stable`, `identified` (and `unidentified`), `active_ranges`, `data_range` (and
       `extrapolated`), `core_finish`, `residual_p` (and `noise_limited`), `loop_spread`,
@@ -79,6 +86,8 @@ class FitResult(AbstractRefinement):
     criterion: str = eqx.field(static=True, default="prediction")
     gauge: str = eqx.field(static=True, default="static_gain")
     initial_state: str = eqx.field(static=True, default="zero")
+    # set by the final judgement (undetermined.judge_branches), which every fit runs
+    interpolation_ratio: Float[Array, ""] | None = None
 
     def summary(self) -> display.Summary:
         """Estimates, standard errors, 95% intervals, the spread of the local optima over
@@ -325,7 +334,8 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     - `throw`: raise :class:`hbjax.RefinementError` if no start succeeded, or the best
       one's loop is not pinned (``RESULTS.loop_unresolved``), or the records do not
       determine its branches (``RESULTS.branches_undetermined``: a branch coefficient
-      unidentified, :mod:`hbjax._identify.undetermined`).
+      unidentified; ``RESULTS.branches_between_levels``: known only at the recorded
+      inputs; :mod:`hbjax._identify.undetermined`).
     - `progress`: a progress bar (``tqdm.auto``, on stderr) once the fit has run for more
       than 2 s on a terminal or in Jupyter; ``False`` silences it, a dict passes options
       to tqdm (``docs/performance.md``).
@@ -373,13 +383,14 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                               initial_state=initial_state)
         if not traced and gain_vanishes(res.model):
             res = better_in_paper_gauge(res, recs, key, _fit_jit, _polished_jit, options)
-        res = judge_branches(judge_loop(res, recs, loop_tolerance))
+        res = judge_branches(judge_loop(res, recs, loop_tolerance), recs)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     if throw and (res.result == RESULTS.loop_unresolved
-                  or res.result == RESULTS.branches_undetermined):
+                  or res.result == RESULTS.branches_undetermined
+                  or res.result == RESULTS.branches_between_levels):
         raise RefinementError(f"fit: the best start succeeded, but {res.message}.")
     if throw and res.result != RESULTS.successful:
         if all(float(np.ptp(np.asarray(v))) == 0.0 for v, _ in recs):

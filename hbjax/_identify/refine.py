@@ -287,7 +287,8 @@ def _restarted(res, records, recs, restarts, options):
                       throw=False, progress=False)
     # (fit's own judgement of undetermined branches is not refine's: refine reports them)
     if int(code(alternative.result)) not in (int(code(RESULTS.successful)),
-                                             int(code(RESULTS.branches_undetermined))):
+                                             int(code(RESULTS.branches_undetermined)),
+                                             int(code(RESULTS.branches_between_levels))):
         return res
     h_m = options["h_m"]
     start = normalise_static_gain(alternative.model) if h_m is None else normalise(

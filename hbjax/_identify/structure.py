@@ -12,6 +12,7 @@ from .._core import display
 from .._core.model import Hammerstein
 from .._core.progress import check_progress, progress_bar
 from .._core.simulate import predict, simulate
+from .._results import RESULTS
 from .._misc import positive_int
 from .compare import compare
 from .._diagnose.residual_tests import no_spread
@@ -30,10 +31,17 @@ class StructureSelection(eqx.Module):
     - `bic`, `aic`: ``N ln(loss) + k ln N`` and ``N ln(loss) + 2k`` (``N`` samples).
     - `validation_fit`: mean free-run fit (%) on the validation records, initial state
       estimated (``nan`` without validation records).
-    - `success`: whether :func:`hbjax.fit` converged; failed rows are ranked last.
+    - `success`: whether :func:`hbjax.fit` succeeded.
+    - `ranked`: whether the row is ranked: a success, or a fit refused only because the
+      records determine its branches at the recorded inputs alone
+      (``RESULTS.branches_between_levels``: an input of a few levels). Such a fit reached
+      its optimum, so its loss compares the orders, while its branches between the levels
+      are not known. Rows not ranked come last.
     - `models`: the fitted models; `messages`: their result messages.
-    - `best`: the first row's ``(na, nb, m)``, ``None`` when no fit succeeded (no
-      structure is selected from failed fits); `rank_by`: the ranking column.
+    - `best`: the first row's ``(na, nb, m)``, ``None`` when no row is ranked (no
+      structure is selected from failed fits); `best_model`: the first row's model when
+      its fit is a success (``None`` otherwise, e.g. for branches known only at the
+      levels: see ``messages[0]``); `rank_by`: the ranking column.
     """
 
     orders: tuple
@@ -43,6 +51,7 @@ class StructureSelection(eqx.Module):
     aic: np.ndarray
     validation_fit: np.ndarray
     success: np.ndarray
+    ranked: np.ndarray
     models: tuple
     messages: tuple = eqx.field(static=True)
     rank_by: str = eqx.field(static=True)
@@ -50,7 +59,7 @@ class StructureSelection(eqx.Module):
 
     @property
     def best(self) -> tuple | None:
-        return self.orders[0] if bool(self.success[0]) else None
+        return self.orders[0] if bool(self.ranked[0]) else None
 
     @property
     def best_model(self) -> Hammerstein | None:
@@ -59,6 +68,9 @@ class StructureSelection(eqx.Module):
     def summary(self) -> str:
         chosen = (f"best (na, nb, m) = {self.best}" if self.best is not None else
                   "no structure selected: every fit failed (see the result column)")
+        if self.best is not None and not bool(self.success[0]):
+            chosen += (" (its fit determines the branches at the recorded inputs only: "
+                       "no best_model)")
         lines = [(f"select_structure: {len(self.orders)} structures, {self.criterion} criterion, "
                  f"ranked by {self.rank_by}; {chosen}"),
                  (f"{'na':>3}{'nb':>4}{'m':>3}{'k':>4}{'loss':>12}{'BIC':>12}{'AIC':>12}"
@@ -120,13 +132,16 @@ def _score(recs, val, a, b, c, key, starts, criterion, fit_kw):
     """One row of the table: fit the orders ``(a, b, c)`` and score them."""
     res = fit(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
               throw=False, **fit_kw)
-    ok = res.message == "success"
-    loss, n = _loss(res.model, recs, criterion) if ok else (np.inf, 1)
+    ok = bool(res.result == RESULTS.successful)
+    # (a fit whose branches are known at the levels only reached its optimum: its loss
+    # still compares the orders; measured in tests/test_validation_tools.py)
+    ranked = ok or bool(res.result == RESULTS.branches_between_levels)
+    loss, n = _loss(res.model, recs, criterion) if ranked else (np.inf, 1)
     k = a + b + 2 * c - 1
     log_loss = math.log(loss) if 0 < loss < np.inf else (np.inf if loss else -np.inf)
-    vfit = _validation_fit(res.model, val) if (ok and val is not None) else np.nan
+    vfit = _validation_fit(res.model, val) if (ranked and val is not None) else np.nan
     return ((a, b, c), k, loss, n * log_loss + k * math.log(n), n * log_loss + 2 * k, vfit,
-            ok, res.model, res.message)
+            ok, ranked, res.model, res.message)
 
 
 def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction",
@@ -185,12 +200,12 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
             bar.update(1)
     column = {"bic": 3, "aic": 4}
     if rank_by == "validation":
-        order = sorted(range(len(rows)), key=lambda i: (not rows[i][6], -rows[i][5], rows[i][3]))
+        order = sorted(range(len(rows)), key=lambda i: (not rows[i][7], -rows[i][5], rows[i][3]))
     else:
-        order = sorted(range(len(rows)), key=lambda i: (not rows[i][6], rows[i][column[rank_by]]))
+        order = sorted(range(len(rows)), key=lambda i: (not rows[i][7], rows[i][column[rank_by]]))
     rows = [rows[i] for i in order]
     cols = list(zip(*rows))
     return StructureSelection(
         tuple(cols[0]), np.asarray(cols[1]), np.asarray(cols[2]), np.asarray(cols[3]),
-        np.asarray(cols[4]), np.asarray(cols[5], float), np.asarray(cols[6]), tuple(cols[7]),
-        tuple(cols[8]), rank_by, criterion)
+        np.asarray(cols[4]), np.asarray(cols[5], float), np.asarray(cols[6]),
+        np.asarray(cols[7]), tuple(cols[8]), tuple(cols[9]), rank_by, criterion)
