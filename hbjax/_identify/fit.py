@@ -23,11 +23,12 @@ from .._core.mappings import release_compiled_programs
 from .._core.progress import check_progress, progress_bar
 from .._misc import check_bool, check_key, is_traced, positive_int
 from .._core.precision import require_x64
+from .centring import in_recorded_coordinates, less_centres, record_centres
 from .criteria import data_scale
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
-    arx_given_backlash, canonical_labels, closing_band, closing_count, closing_positions,
-    random_backlash, swap_covariance, swap_perm,
+    canonical_labels, closing_band, closing_count, closing_positions,
+    random_backlash, start_given_backlash, swap_covariance, swap_perm,
 )
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
@@ -233,7 +234,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         if n_close:
             bl = jax.tree_util.tree_map(lambda a, b: jnp.where(closing, a, b),
                                         closing_band(best_model, scale, x0), bl)
-        init = Hammerstein(bl, arx_given_backlash(bl, recordings, na, nb, skip))
+        init = start_given_backlash(bl, recordings, na, nb, skip)
         r = refined(init, core_only=closing if n_close else False)
         score = _score(r)
         better = ~closing & (score < best_score)
@@ -363,13 +364,19 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
             f"`recordings` hold {total_samples(recs)} samples; fitting {q} free parameters "
             f"needs more than {2 * q}."
         )
+    # Records far from zero are solved less their centres (centring.py: the powers of v
+    # are nearly collinear there, and an output offset swamps the output's unit); the
+    # result is reported in the records' own coordinates.
+    centres = record_centres(recs, initial_state)
+    moved = any(is_traced(c) or float(c) != 0.0 for c in centres)
+    solved = less_centres(recs, *centres) if moved else recs
     # The starts run inside one compiled program: the bar shows the elapsed time.
     with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
         options = dict(na=na, nb=nb, m=m, starts=starts, criterion=criterion,
                        max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit),
                        initial_state=initial_state)
         traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
-        res = _fit_jit(recs, key, polish=traced, **options)
+        res = _fit_jit(solved, key, polish=traced, **options)
         # A closing start was solved on the core operator already (under jit, fit_traceable
         # polished the best start itself).
         if not traced and (
@@ -378,12 +385,14 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                 or res.result != RESULTS.successful):
             # Only a loop closing inside the data (or no success) needs the core solve of
             # the best start: compiled on its own, from the starts' result.
-            res = _polish_jit(res, recs, criterion=criterion, max_steps=max_steps,
+            res = _polish_jit(res, solved, criterion=criterion, max_steps=max_steps,
                               min_sim_fit=options["min_sim_fit"],
                               initial_state=initial_state)
         if not traced and gain_vanishes(res.model):
-            res = better_in_paper_gauge(res, recs, key, _fit_jit, _polished_jit, options)
-        res = judge_branches(judge_loop(res, recs, loop_tolerance), recs)
+            res = better_in_paper_gauge(res, solved, key, _fit_jit, _polished_jit, options)
+        res = judge_branches(judge_loop(res, solved, loop_tolerance), solved)
+        if moved:
+            res = in_recorded_coordinates(res, *centres, _starts_summary)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
