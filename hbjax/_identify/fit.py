@@ -28,7 +28,7 @@ from .criteria import data_scale
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
     canonical_labels, closing_band, closing_count, closing_positions,
-    random_backlash, start_given_backlash, swap_covariance, swap_perm,
+    arx_given_backlash, random_backlash, swap_covariance, swap_perm,
 )
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
@@ -234,7 +234,7 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         if n_close:
             bl = jax.tree_util.tree_map(lambda a, b: jnp.where(closing, a, b),
                                         closing_band(best_model, scale, x0), bl)
-        init = start_given_backlash(bl, recordings, na, nb, skip)
+        init = Hammerstein(bl, arx_given_backlash(bl, recordings, na, nb, skip))
         r = refined(init, core_only=closing if n_close else False)
         score = _score(r)
         better = ~closing & (score < best_score)
