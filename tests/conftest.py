@@ -4,6 +4,16 @@ import subprocess
 import sys
 import tempfile
 
+# One OpenBLAS thread per process. JAX's CPU LAPACK kernels (the QR of every
+# Levenberg-Marquardt step, the Cholesky of refinement) run in scipy's OpenBLAS, whose
+# idle threads spin; with two pytest workers on two cores (or any other work beside the
+# run) each worker's BLAS threads compete with the other worker for the cores, and a
+# diagnosis ran 5-10 times slower (tests/test_diagnose.py's study of 27 diagnoses beside
+# one other busy process: 430 s with the default threads, 95 s with one; results
+# bit-identical). Set before NumPy and OpenBLAS load; the workers and subprocesses inherit
+# it. A user's own setting is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import numpy as np
 import pytest
 
