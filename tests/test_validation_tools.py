@@ -300,7 +300,9 @@ def test_select_structure_finds_true_orders():
         sel = hbjax.select_structure((v, y), na=range(1, 3), nb=1, m=[2, 3, 4],
                                      key=jax.random.PRNGKey(0), starts=8, progress=False)
         assert len(sel.orders) == 6 and np.all(np.diff(sel.bic[sel.ranked]) >= 0)
-        assert np.all(sel.ranked[sel.success]) and (sel.best_model is None) != bool(sel.success[0])
+        # a row refused only for branches known at the levels is ranked, with no model
+        for ranked, ok, msg in zip(sel.ranked, sel.success, sel.messages):
+            assert ranked == (ok or msg.startswith("the records determine the branches only"))
         hits.append(sel.best == (1, 1, 3))
     assert sum(hits) >= 4, hits
 

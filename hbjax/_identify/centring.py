@@ -14,14 +14,21 @@ the output less its mean, and reports the model in the records' own coordinates.
   model only as the branches' constant terms, ``A(1) ybar = B(1) delta``. Moved by 10^3
   times its range, the fit of a random system stopped at 1.15 times the cost of the
   unshifted records (validation 95.0 % against 98.8 %); by 10^4 its coefficients read as
-  unidentified. With the initial state estimated, ``(v, y - ybar)`` and ``(v, y)`` have
-  the same residuals under the models ``(A, B, P)`` and ``(A, B, P + delta)``, so the
-  output is centred only then (from rest, ``initial_state="zero"``, the offset is part of
-  the start-up and the records are solved as they are).
+  unidentified. The models ``(A, B, P)`` on ``(v, y - ybar)`` and ``(A, B, P + delta)`` on
+  ``(v, y)`` give the same outputs from the same internal state, and with the initial
+  state estimated the output lags before the record are left out either way; one thing
+  differs: the criterion starts the play operator at ``u = 0``, which on the centred
+  records is the output's operating point and on the records as recorded a state far
+  below or above both branches (the play then jumps onto a branch at the first sample).
+  So the output is centred only with ``initial_state="estimate"`` and only where it lies
+  far from zero; the reported costs, residual tests and judgements are those of the
+  centred solve, and the model's start on the records as recorded is best taken from
+  :func:`hbjax.estimate_initial_state` (as :func:`hbjax.compare` does). From rest
+  (``initial_state="zero"``) the records are solved as they are.
 
-The model, its covariance (through the map's Jacobian) and its identified flags carry over
-(:func:`in_recorded_coordinates`); a parameter is unidentified where it draws on an
-unidentified one.
+The input's centre is an exact reparametrisation. The model, its covariance (through the
+map's Jacobian) and its identified flags carry over (:func:`in_recorded_coordinates`); a
+parameter is unidentified where it draws on an unidentified one.
 """
 
 import dataclasses
@@ -77,7 +84,10 @@ def _to_recorded(theta, v_centre, y_centre, na: int, nb: int, m: int):
     records as recorded: the branches moved by ``A(1) y_centre / B(1)`` and re-expanded in
     powers of ``v``."""
     a, b = theta[:na], theta[na:na + nb]
-    delta = (1.0 + jnp.sum(a)) * y_centre / jnp.sum(b)
+    gain = jnp.sum(b)
+    # (no shift where the output was not moved, also for a failed start with B(1) = 0)
+    delta = jnp.where(y_centre == 0, 0.0, (1.0 + jnp.sum(a)) * y_centre
+                      / jnp.where(gain == 0, 1.0, gain))
     t = recentring_matrix(v_centre, m)
     c1 = t @ theta[na + nb:na + nb + m].at[0].add(delta)
     c2 = t @ theta[na + nb + m:].at[0].add(delta)

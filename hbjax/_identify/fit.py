@@ -38,7 +38,7 @@ from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
 from .refine import check_floor, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
-from .undetermined import judge_branches
+from .undetermined import judge_branches, refuse_unseen
 from .refine_result import AbstractRefinement, RefinementError
 
 
@@ -61,7 +61,8 @@ class FitResult(AbstractRefinement):
       standard deviation between the recorded inputs (inside the range where it decides
       the output) over its largest at them; 1 for an input that moves through its range,
       above 2 (``RESULTS.branches_between_levels``) where the branches are known only at
-      the recorded levels; NaN where a parameter is unidentified.
+      the recorded levels; NaN where a parameter is unidentified. (Where `fit` took a far
+      output offset out, :mod:`hbjax._identify.centring`, it is the centred solve's.)
     - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
       `stable`, `identified` (and `unidentified`), `active_ranges`, `data_range` (and
       `extrapolated`), `core_finish`, `residual_p` (and `noise_limited`), `loop_spread`,
@@ -392,7 +393,9 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
             res = better_in_paper_gauge(res, solved, key, _fit_jit, _polished_jit, options)
         res = judge_branches(judge_loop(res, solved, loop_tolerance), solved)
         if moved:
-            res = in_recorded_coordinates(res, *centres, _starts_summary)
+            # (judged on the centred records; a constant term that draws on an
+            # unidentified a or b is unidentified on the records as recorded)
+            res = refuse_unseen(in_recorded_coordinates(res, *centres, _starts_summary))
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):

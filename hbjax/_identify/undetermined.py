@@ -64,22 +64,28 @@ def _interpolation_ratio(res, recordings, k):
     return jnp.where(active & (at > 0), between / jnp.where(at > 0, at, 1.0), 1.0)
 
 
+def refuse_unseen(res):
+    """`res` with its success turned into ``RESULTS.branches_undetermined`` where a branch
+    coefficient is unidentified (traceable)."""
+    m = res.model.backlash.m
+    seen = jnp.all(res.identified[res.identified.shape[0] - 2 * m:])
+    result = RESULTS.where((res.result == RESULTS.successful) & ~seen,
+                           RESULTS.branches_undetermined, res.result)
+    return dataclasses.replace(res, result=result)
+
+
 def judge_branches(res, recordings):
     """`res` (a :class:`hbjax.FitResult`) with its `interpolation_ratio` set and its
     success turned into ``RESULTS.branches_undetermined`` where a branch coefficient is
-    unidentified, or into ``RESULTS.branches_between_levels`` where a branch is determined
-    only at the recorded inputs: between them, inside the range where it decides the
-    output, its standard deviation exceeds :data:`INTERPOLATION_RATIO` times its largest
-    at them (an input of a few levels, whose polynomial between the levels the covariance
-    leaves open). Traceable."""
-    m = res.model.backlash.m
-    seen = jnp.all(res.identified[res.identified.shape[0] - 2 * m:])
-    # (an infinite covariance is an unidentified parameter, judged above, or a refused fit)
+    unidentified (:func:`refuse_unseen`), or into ``RESULTS.branches_between_levels``
+    where a branch is determined only at the recorded inputs: between them, inside the
+    range where it decides the output, its standard deviation exceeds
+    :data:`INTERPOLATION_RATIO` times its largest at them (an input of a few levels, whose
+    polynomial between the levels the covariance leaves open). Traceable."""
+    # (an infinite covariance is an unidentified parameter, judged here, or a refused fit)
     finite = jnp.all(jnp.isfinite(res.covariance))
     ratio = jnp.where(finite, jnp.maximum(_interpolation_ratio(res, recordings, 0),
                                           _interpolation_ratio(res, recordings, 1)), jnp.nan)
-    success = res.result == RESULTS.successful
-    result = RESULTS.where(success & ~seen, RESULTS.branches_undetermined, res.result)
-    result = RESULTS.where(success & seen & finite & (ratio > INTERPOLATION_RATIO),
-                           RESULTS.branches_between_levels, result)
-    return dataclasses.replace(res, result=result, interpolation_ratio=ratio)
+    between = (res.result == RESULTS.successful) & finite & (ratio > INTERPOLATION_RATIO)
+    result = RESULTS.where(between, RESULTS.branches_between_levels, res.result)
+    return refuse_unseen(dataclasses.replace(res, result=result, interpolation_ratio=ratio))
