@@ -27,8 +27,8 @@ from .centring import in_recorded_coordinates, less_centres, record_centres
 from .criteria import data_scale
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
-    canonical_labels, closing_band, closing_count, closing_positions,
-    arx_given_backlash, random_backlash, swap_covariance, swap_perm,
+    arx_given_backlash, canonical_labels, closing_band, closing_count, closing_positions,
+    random_backlash, swap_covariance, swap_perm,
 )
 from .._core.model import Hammerstein
 from .._core.params import flatten_params

@@ -72,12 +72,7 @@ def arx_given_backlash(backlash: Backlash, recordings, na: int, nb: int,
                        skip: int = 0) -> ARX:
     """Least-squares ``a, b`` of the equation-error regression (eq. (10)) with
     ``u = HB(v)`` known: linear in ``a, b``, solved over all records at once (leaving out
-    each record's first `skip` samples).
-
-    (A constant regressor, moving both branches by ``d / B(1)``, was tried for records
-    with an output offset: neutral on the closing-loop study and a worse optimum on the
-    Cascaded Tanks, 0.717 V against 0.674 V; `fit` takes a far offset out instead,
-    :mod:`hbjax._identify.centring`.)"""
+    each record's first `skip` samples)."""
     def internal(v):
         # the core operator (sorted band): the random starts' branches may cross
         p1, p2 = backlash.p1(v), backlash.p2(v)

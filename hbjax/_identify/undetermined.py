@@ -32,7 +32,7 @@ from .criteria import unpack, where_valid
 # A branch is determined only at the recorded inputs where its standard deviation (the
 # estimate's covariance carried to the branch's value) somewhere between them, inside the
 # range where it decides the output, exceeds this many times its largest value at them.
-# Measured (benchmarks/RESULTS.md, "Branches determined only at the recorded levels"): 1
+# Measured (benchmarks/RESULTS.md, "Branches known only at the recorded levels"): 1
 # on every record of continuous inputs (the largest is at a recorded input), 1-1.9 on the
 # PRBS-levels successes that validated at 96.9-99.6 %, 4.95-47 on those that validated
 # at -279-92 % on fresh levels.
