@@ -90,3 +90,52 @@ def test_the_centre_is_taken_out_only_far_from_zero():
     x = np.linspace(-3.0, 5.0, 11)
     np.testing.assert_allclose(np.polynomial.polynomial.polyval(x, np.asarray(t) @ d),
                                np.polynomial.polynomial.polyval(x - 2.0, d), rtol=1e-12)
+
+
+def _moved_branch(c, shift):
+    """Coefficients of ``P(v - shift)`` in powers of ``v`` (the branch of a record whose
+    input is moved by ``shift``)."""
+    out = np.zeros(len(c))
+    for j, cj in enumerate(np.asarray(c, float)):
+        term = np.polynomial.polynomial.polypow([-shift, 1.0], j)
+        out[:term.size] += cj * term
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1])
+def test_refine_solves_records_far_from_zero_as_fit_does(seed):
+    """`refine` from the true system, on a short record whose output lies 30-100 ranges
+    from zero (and input 5-15 half-ranges), ends where `fit` ends (scored alike: the
+    one-step errors from the initial state `compare` estimates). Before `refine` centred
+    such records its criterion started the play operator beyond both branches: on one
+    record of ``benchmarks/fit_offsets.py --seed 2`` it ended 3393 ``sigma^2`` above
+    `fit`'s model and reported a success."""
+    rng = np.random.default_rng(500 + seed)
+    sys_ = random_paper_system(rng, m=2)
+    scale = 2.0 * sys_["h_m"]
+    v = random_input(rng, "filtered_noise", 300, scale)
+    free, _ = simulate_numpy(sys_, v)
+    sigma = 0.002 * float(np.ptp(free))
+    y, _ = simulate_numpy(sys_, v, sigma * rng.normal(size=v.size))
+    y_shift = rng.choice([-1, 1]) * rng.uniform(30, 100) * float(np.ptp(free))
+    v_shift = rng.choice([-1, 1]) * rng.uniform(5, 15) * scale
+    V, Y = v + v_shift, y + y_shift
+    a, b = np.asarray(sys_["a"], float), np.asarray(sys_["b"], float)
+    delta = (1.0 + a.sum()) * y_shift / b.sum()  # the output's offset, carried by the branches
+    truth = hbjax.Hammerstein(
+        hbjax.Backlash(*(_moved_branch(c, v_shift) + delta for c in (sys_["c1"], sys_["c2"]))),
+        hbjax.ARX(a, b))
+    refined = hbjax.refine(hbjax.normalise_static_gain(truth), [(V, Y)],
+                           initial_state="estimate", throw=False)
+    fitted = hbjax.fit((V, Y), na=len(a), nb=len(b), m=2, key=jax.random.PRNGKey(seed),
+                       starts=8, throw=False, progress=False)
+    assert refined.result == hbjax.RESULTS.successful, refined.message
+    assert fitted.result == hbjax.RESULTS.successful, fitted.message
+
+    def squares(model):  # in noise variances
+        return V.size * float(hbjax.compare(model, V, Y, horizon=1).rmse) ** 2 / sigma**2
+
+    assert abs(squares(refined.model) - squares(fitted.model)) < 1.0
+    # reported in the records' own coordinates: its input range is the recorded one
+    np.testing.assert_allclose(np.asarray(refined.data_range), [V.min(), V.max()], rtol=1e-12)

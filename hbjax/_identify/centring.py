@@ -1,5 +1,7 @@
-"""Records held far from zero: :func:`hbjax.fit` solves on the input less its centre and
-the output less its mean, and reports the model in the records' own coordinates.
+"""Records held far from zero: :func:`hbjax.fit` and :func:`hbjax.refine` solve on the
+input less its centre and the output less its midpoint, and report the model in the
+records' own coordinates (``refine`` maps its start onto the centred records first,
+:func:`to_centred`).
 
 - **The input.** The branches are polynomials in ``v``. Where the recorded inputs lie far
   from zero against their own spread (a valve between 40 and 60 %, a temperature around
@@ -94,11 +96,37 @@ def _to_recorded(theta, v_centre, y_centre, na: int, nb: int, m: int):
     return jnp.concatenate([a, b, c1, c2])
 
 
-def in_recorded_coordinates(res, v_centre, y_centre, spread_of):
-    """``res`` (a :class:`hbjax.FitResult` solved on the records less their centres) on
-    the records as recorded: coefficients, covariance (``J C J^T`` with ``J`` the map's
-    Jacobian), identified flags, the starts' optima and their spread
-    (``spread_of(ok, costs, params, best)``), and the input ranges."""
+def to_centred(model: Hammerstein, v_centre, y_centre) -> Hammerstein:
+    """`model` (coefficients in powers of ``v``, outputs as recorded) on the records less
+    their centres: the inverse of the map :func:`in_recorded_coordinates` applies (the
+    branches moved by ``-A(1) y_centre / B(1)``, re-expanded in powers of
+    ``v - v_centre``). Traceable."""
+    bl, arx = model.backlash, model.arx
+    gain = jnp.sum(arx.b)
+    delta = jnp.where(y_centre == 0, 0.0, (1.0 + jnp.sum(arx.a)) * y_centre
+                      / jnp.where(gain == 0, 1.0, gain))
+    t = recentring_matrix(-v_centre, bl.m)  # (powers of v -> powers of v - v_centre)
+    return Hammerstein(type(bl)((t @ bl.c1).at[0].add(-delta), (t @ bl.c2).at[0].add(-delta)),
+                       arx)
+
+
+def refine_centres(recordings, model: Hammerstein, initial_state: str, h_m):
+    """:func:`record_centres` for :func:`hbjax.refine`: the input's only in the static-gain
+    gauge (``h_m=None``: the paper's gauge ``P2(-h_m) - P1(h_m) = 1`` is set at the
+    recorded inputs ``+-h_m``), the output's only for a start with a static gain
+    (``B(1) != 0``: the offset ``A(1) y_centre / B(1)`` is carried by the branches)."""
+    v_centre, y_centre = record_centres(recordings, initial_state)
+    if h_m is not None:
+        v_centre = jnp.zeros_like(v_centre)
+    return v_centre, jnp.where(jnp.sum(model.arx.b) == 0, 0.0, y_centre)
+
+
+def in_recorded_coordinates(res, v_centre, y_centre, spread_of=None):
+    """``res`` (a :class:`hbjax.FitResult` or :class:`RefineResult` solved on the records
+    less their centres) on the records as recorded: coefficients, covariance
+    (``J C J^T`` with ``J`` the map's Jacobian), identified flags, the input ranges and,
+    for a fit, the starts' optima and their spread (``spread_of(ok, costs, params,
+    best)``)."""
     na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
     bl = res.model.backlash
     theta_c = jnp.concatenate([res.model.arx.a, res.model.arx.b, bl.c1, bl.c2])
@@ -112,10 +140,13 @@ def in_recorded_coordinates(res, v_centre, y_centre, spread_of):
     identified = (jnp.abs(jac) > 0).astype(jac.dtype) @ unknown == 0
     known = res.identified[:, None] & res.identified[None, :]
     covariance = jac @ jnp.where(known, res.covariance, 0.0) @ jac.T
-    params = jax.vmap(to)(res.starts_params)
-    ok = jnp.isfinite(res.starts_costs)
-    spread, _ = spread_of(ok, res.starts_costs, params, res.best_index)
+    starts = {}
+    if spread_of is not None:
+        params = jax.vmap(to)(res.starts_params)
+        ok = jnp.isfinite(res.starts_costs)
+        spread, _ = spread_of(ok, res.starts_costs, params, res.best_index)
+        starts = dict(starts_params=params, spread=spread)
     return dataclasses.replace(
         res, model=model, covariance=mark_unidentified(covariance, identified),
-        identified=identified, starts_params=params, spread=spread,
-        active_ranges=res.active_ranges + v_centre, data_range=res.data_range + v_centre)
+        identified=identified, active_ranges=res.active_ranges + v_centre,
+        data_range=res.data_range + v_centre, **starts)
