@@ -8,6 +8,7 @@ system reaches, and report in ``B(1) = 1``.
 """
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -59,3 +60,34 @@ def test_a_stable_start_is_kept_as_it_is():
     # an unstable start is projected onto the stable models
     assert np.all(np.abs(np.roots(np.r_[1.0, np.asarray(a_from_free(free_from_a(
         np.asarray([-2.1, 1.1]))))])) < 1)
+
+
+@pytest.mark.parametrize("seed", [3, 5, 7])
+def test_standard_errors_where_the_static_gain_vanishes(seed):
+    """The reported covariance is the Gauss-Newton one, computed here independently: the
+    one-step errors' Jacobian in ``theta`` (``b_1 = 1 - b_2 - ...`` eliminated), its
+    columns equilibrated, inverted in full. Before, the solve's ``J^T J`` was
+    pseudo-inverted raw, whose relative cut-off (~1e-15) dropped the directions where
+    ``b`` ~ 1e3-1e4 and reported ``std(b)`` of 1e-12-1e-9 against 12-35000."""
+    sys_, v, y = _record(seed)
+    res = hbjax.refine(hbjax.normalise_static_gain(to_hbjax(sys_)), (v, y),
+                       initial_state="estimate", restarts=0, throw=False)
+    assert res.result == hbjax.RESULTS.successful, res.message
+    na, nb = res.model.arx.na, res.model.arx.nb
+    theta = np.asarray(hbjax.flatten_params(res.model))
+
+    def errors(free):  # the records' first max(na, nb) samples reach before them: left out
+        b_first = 1.0 - jnp.sum(free[na:na + nb - 1], keepdims=True)
+        model = hbjax.unflatten_params(res.model, jnp.concatenate([free[:na], b_first, free[na:]]))
+        return (jnp.asarray(y) - hbjax.predict(model, jnp.asarray(v), jnp.asarray(y)))[max(na, nb):]
+
+    free = jnp.asarray(np.concatenate([theta[:na], theta[na + 1:]]))
+    jac, e = np.asarray(jax.jacfwd(errors)(free)), np.asarray(errors(free))
+    scale = np.linalg.norm(jac, axis=0)
+    cov = (e @ e / (e.size - free.size)) * np.linalg.inv(
+        (jac / scale).T @ (jac / scale)) / np.outer(scale, scale)
+    reported = np.sqrt(np.diag(np.asarray(res.covariance)))
+    expected = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose(reported[na + 1:], expected[na:], rtol=0.02)
+    np.testing.assert_allclose(reported[:na], expected[:na], rtol=0.02)
+    assert np.abs(np.asarray(res.model.arx.b)).max() > 100  # the case this test is about

@@ -22,7 +22,8 @@ from .adequacy import (
 )
 from .criteria import PREDICTION, branches_meet, unpack
 from .quality import (
-    SIM_FIT_FLOOR, core_consistent, identified, is_stable, mark_unidentified, simulation_fit,
+    SIM_FIT_FLOOR, core_consistent, gauss_newton_inverse, identified, is_stable,
+    mark_unidentified, simulation_fit,
 )
 from .uncertainty import free_run_std
 
@@ -124,8 +125,9 @@ class RefineResult(AbstractRefinement):
       gives it in words.
     - `stats`: ``{"steps", "cost", "initial_cost", "samples"}``: optimiser steps, mean
       squared residual at the optimum and at the start, residuals used.
-    - `covariance`: ``sigma^2 (J^T J)^+`` mapped to the normalised parameters (order
-      a, b, c1, c2 of :func:`hbjax.flatten_params`); singular along the constraint.
+    - `covariance`: ``sigma^2 (J^T J)^-1`` mapped to the normalised parameters (order
+      a, b, c1, c2 of :func:`hbjax.flatten_params`); singular along the constraint;
+      ``inf`` variance for the parameters listed in `unidentified`.
     - `noise_std`: ``sqrt(SSR / (N - q))``, ``q`` the number of free parameters.
     - `branches_cross`: whether the branches cross or meet at some recorded input
       (informational: the model is the core operator ``L = min, H = max`` on the data).
@@ -181,13 +183,15 @@ def summarise(par, z, ssr, ssr0, jtj, n, result, steps, ok):
     sum of squared residuals ``ssr`` (``ssr0`` at the start), ``J^T J`` and the number of
     residuals ``n``.
 
-    ``cov(theta) = D sigma^2 (J^T J)^+ D^T`` with ``J = dr/dz`` and ``D = dtheta/dz``: the
+    ``cov(theta) = D sigma^2 (J^T J)^-1 D^T`` with ``J = dr/dz`` and ``D = dtheta/dz``: the
     usual asymptotic covariance of the least-squares estimate, in the normalised
-    parameters (the constraint direction has zero variance).
+    parameters (the constraint direction has zero variance). The inverse is taken on the
+    directions the data identify, with the same column-normalised rank test that marks
+    the others (:func:`hbjax._identify.quality.gauss_newton_inverse`).
     """
     q = z.shape[0]
     noise_var = ssr / jnp.maximum(n - q, 1)  # n: an int, or traced for padded records
-    cov_z = noise_var * jnp.linalg.pinv(jtj, hermitian=True)
+    cov_z = noise_var * gauss_newton_inverse(jtj)
     d = par.jacobian()
     cov = d @ cov_z @ d.T
     finite = jnp.all(jnp.isfinite(z)) & jnp.isfinite(ssr)

@@ -2,8 +2,9 @@
 power of two nearest above the largest ``|y|``, and its result is carried back to ``y``.
 
 Why: the Levenberg–Marquardt tolerances (optimistix's Cauchy termination) are absolute in
-the residuals and the free parameters, and the covariance's pseudo-inverse cuts singular
-values relative to the largest one, over parameters in mixed units. Without this step a
+the residuals and the free parameters, and the covariance's pseudo-inverse cut singular
+values relative to the largest one, over parameters in mixed units (it is now taken on the
+column-normalised matrix, :func:`hbjax._identify.quality.gauss_newton_inverse`). Without this step a
 record in micro-units stopped at its start and reported success, and one in mega-units
 halved its standard errors. The inputs are scaled the same way already (the
 parametrisation's ``scale``).
