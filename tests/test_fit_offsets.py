@@ -82,7 +82,8 @@ def test_the_centre_is_taken_out_only_far_from_zero():
 
     ramp = jnp.linspace(-1.0, 3.0, 9)
     assert centres(ramp, ramp) == (0.0, 0.0)
-    assert centres(ramp + 11.0, ramp + 101.0) == (12.0, 102.0)
+    # the input's midpoint; the output's first sample, where the criterion's play starts
+    assert centres(ramp + 11.0, ramp + 101.0) == (12.0, 100.0)
     assert centres(ramp + 11.0, ramp + 101.0, "zero") == (12.0, 0.0)  # from rest: as recorded
     assert centres(jnp.full(9, 5.0), ramp) == (0.0, 0.0)  # a constant input
     t = recentring_matrix(jnp.asarray(2.0), 4)
@@ -139,3 +140,44 @@ def test_refine_solves_records_far_from_zero_as_fit_does(seed):
     assert abs(squares(refined.model) - squares(fitted.model)) < 1.0
     # reported in the records' own coordinates: its input range is the recorded one
     np.testing.assert_allclose(np.asarray(refined.data_range), [V.min(), V.max()], rtol=1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [502, 503])
+def test_records_from_rest_off_their_midpoint_fit_as_the_unmoved_ones(seed):
+    """Two short records from rest, moved by 40 output ranges, whose start lies away from
+    the outputs' midpoint: `fit` and `refine` (from the true system) reach the unmoved
+    records' optimum. With the output centred at its midpoint the criterion's play
+    operator started 14 % of the range away from the records' start, and on the first
+    seed both ended 7598 ``sigma^2`` above the true system's 517, reported as successes."""
+    rng = np.random.default_rng(seed)
+    sys_ = random_paper_system(rng, m=2)
+    scale = 2.0 * sys_["h_m"]
+    inputs = [random_input(rng, "filtered_noise", n, scale) for n in (300, 220)]
+    free = [simulate_numpy(sys_, v)[0] for v in inputs]
+    sigma = 0.002 * float(np.ptp(free[0]))
+    outputs = [simulate_numpy(sys_, v, sigma * rng.normal(size=v.size))[0] for v in inputs]
+    y_shift = 40.0 * float(np.ptp(free[0]))
+    unmoved = list(zip(inputs, outputs))
+    moved = [(v, y + y_shift) for v, y in unmoved]
+    orders = dict(na=len(sys_["a"]), nb=len(sys_["b"]), m=2)
+
+    def squares(model, records):  # one-step errors from compare's initial state, in sigma^2
+        return sum(v.size * float(hbjax.compare(model, v, y, horizon=1).rmse) ** 2
+                   for v, y in records) / sigma**2
+
+    def fitted(records):
+        return hbjax.fit(records, key=jax.random.PRNGKey(0), starts=8, throw=False,
+                         progress=False, **orders)
+
+    a, b = np.asarray(sys_["a"], float), np.asarray(sys_["b"], float)
+    delta = (1.0 + a.sum()) * y_shift / b.sum()  # the offset, carried by the branches
+    truth = hbjax.Hammerstein(hbjax.Backlash(np.asarray(sys_["c1"]) + np.eye(2)[0] * delta,
+                                             np.asarray(sys_["c2"]) + np.eye(2)[0] * delta),
+                              hbjax.ARX(a, b))
+    refined = hbjax.refine(hbjax.normalise_static_gain(truth), moved,
+                           initial_state="estimate", throw=False)
+    reference = squares(fitted(unmoved).model, unmoved)
+    for res in (fitted(moved), refined):
+        assert res.result == hbjax.RESULTS.successful, res.message
+        assert abs(squares(res.model, moved) - reference) < 1.0

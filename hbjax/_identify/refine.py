@@ -147,7 +147,9 @@ def refine_batch(models: Hammerstein, inputs, outputs, *, criterion: str = "pred
     `inputs` (tuple of input records ``v_k``, shape ``(T_k,)``), `outputs` (tuple of
     output records ``y_k``, shape ``(R, T_k)``), `batch_size` (``None``: one fit after the
     other inside one compiled ``lax.map``; ``k``: ``vmap`` over groups of ``k``); other
-    options as :func:`refine`.
+    options as :func:`refine`. Unlike :func:`refine`, the records are solved as given (no
+    centring of records far from zero, :mod:`hbjax._identify.centring`; the initial state
+    from rest): take such offsets out first.
 
     On CPU the sequential map is about 3x faster per fit than ``vmap`` (measured in
     ``benchmarks/refine.py``): one fit's Jacobian (``T x p``) stays in cache, a batch's
@@ -387,7 +389,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       squares for the current parameters (:mod:`hbjax._identify.stable`); the reported
       free-run fit figures start from the state :func:`hbjax.estimate_initial_state`
       estimates (output lags and play state). Records far from zero (input or output beyond twice
-      their half-range from it) are solved less their midpoints and the result reported
+      their half-range from it) are solved less their centres and the result reported
       as recorded, as :func:`hbjax.fit` does (:mod:`hbjax._identify.centring`).
     - `restarts`: ``k > 0`` (default 16, :data:`AUTO_RESTARTS`): where the result is not
       a success, or (prediction criterion) its one-step errors fail the whiteness or
