@@ -84,6 +84,14 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
         "far off: record an input that moves through more values, or lower m (the model is "
         "returned with throw=False)"
     )
+    free_run_undetermined = (
+        "the estimate's own covariance leaves its free run on the estimation records "
+        "uncertain by more than the output's spread (see .free_run_spread, % of it): a "
+        "parameter draw as likely as the estimate simulates the records worse than their "
+        "mean, so the records do not determine the model (a short or noisy record, a static "
+        "gain near 0); record longer or with less noise, or lower the orders (the model is "
+        "returned with throw=False)"
+    )
 
 
 def message(result) -> str:

@@ -124,6 +124,7 @@ FIGURES = (
     ("branches_cross", "branches cross on the data"),
     ("loop_spread", "free-run spread where the loop closes (%)"),
     ("interpolation_ratio", "branch std between recorded inputs / at them"),
+    ("free_run_spread", "free-run sd from the covariance (% of output spread)"),
     ("stats.cost", "cost (mean squared residual)"),
     ("stats.initial_cost", "initial cost"),
     ("stats.steps", "optimiser steps"),

@@ -38,6 +38,7 @@ from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
 from .refine import check_floor, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
+from .free_run import judge_free_run
 from .undetermined import judge_branches, refuse_unseen
 from .refine_result import AbstractRefinement, RefinementError
 
@@ -63,6 +64,10 @@ class FitResult(AbstractRefinement):
       above 2 (``RESULTS.branches_between_levels``) where the branches are known only at
       the recorded levels; NaN where a parameter is unidentified. (Where `fit` took a far
       output offset out, :mod:`hbjax._identify.centring`, it is the centred solve's.)
+    - `free_run_spread`: where the best start succeeded (eager calls), the free-run
+      standard deviation its covariance implies on the estimation records, pooled, in
+      percent of the simulated output's spread (``RESULTS.free_run_undetermined`` above
+      ``100 - min_sim_fit``: :mod:`hbjax._identify.free_run`); ``None`` otherwise.
     - `stats`, `covariance`, `noise_std`, `branches_cross`, `sim_fit`, `sim_fit_pooled`,
       `stable`, `identified` (and `unidentified`), `active_ranges`, `data_range` (and
       `extrapolated`), `core_finish`, `residual_p` (and `noise_limited`), `loop_spread`,
@@ -90,6 +95,8 @@ class FitResult(AbstractRefinement):
     initial_state: str = eqx.field(static=True, default="zero")
     # set by the final judgement (undetermined.judge_branches), which every fit runs
     interpolation_ratio: Float[Array, ""] | None = None
+    # set by free_run.judge_free_run on an eager fit's success
+    free_run_spread: Float[Array, ""] | None = None
 
     def summary(self) -> display.Summary:
         """Estimates, standard errors, 95% intervals, the spread of the local optima over
@@ -392,6 +399,8 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         if not traced and gain_vanishes(res.model):
             res = better_in_paper_gauge(res, solved, key, _fit_jit, _polished_jit, options)
         res = judge_branches(judge_loop(res, solved, loop_tolerance), solved)
+        if not traced:
+            res = judge_free_run(res, solved)
         if moved:
             # (judged on the centred records; a constant term that draws on an
             # unidentified a or b is unidentified on the records as recorded)
@@ -401,6 +410,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     if throw and (res.result == RESULTS.loop_unresolved
+                  or res.result == RESULTS.free_run_undetermined
                   or res.result == RESULTS.branches_undetermined
                   or res.result == RESULTS.branches_between_levels):
         raise RefinementError(f"fit: the best start succeeded, but {res.message}.")

@@ -287,6 +287,9 @@ def describe(res) -> str:
         text += f" (largest pole modulus {res.model.arx.pole_radius():.6g})"
     elif res.result == RESULTS.branches_undetermined:
         text += f" (unidentified: {', '.join(res.unidentified)})"
+    elif res.result == RESULTS.free_run_undetermined:
+        text += (f" (free-run spread {float(res.free_run_spread):.3g} % of the output's "
+                 f"spread, floor {float(res.min_sim_fit):g} %)")
     elif res.result == RESULTS.branches_between_levels:
         text += (f" (a branch's standard deviation between the recorded inputs "
                  f"{float(res.interpolation_ratio):.3g} times its largest at them)")
