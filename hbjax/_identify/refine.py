@@ -288,10 +288,12 @@ def _restarted(res, records, recs, restarts, options):
                       criterion=options["criterion"], initial_state=options["initial_state"],
                       min_sim_fit=options["min_sim_fit"], loop_tolerance=float("inf"),
                       throw=False, progress=False)
-    # (fit's own judgement of undetermined branches is not refine's: refine reports them)
+    # (fit's own judgements of undetermined branches and free runs are not refine's:
+    # refine reports the flags and the covariance)
     if int(code(alternative.result)) not in (int(code(RESULTS.successful)),
                                              int(code(RESULTS.branches_undetermined)),
-                                             int(code(RESULTS.branches_between_levels))):
+                                             int(code(RESULTS.branches_between_levels)),
+                                             int(code(RESULTS.free_run_undetermined))):
         return res
     h_m = options["h_m"]
     start = normalise_static_gain(alternative.model) if h_m is None else normalise(
