@@ -95,16 +95,21 @@ def recentring_matrix(centre, m: int):
     return jnp.asarray(binomial) * (-centre) ** jnp.asarray(np.maximum(j - i, 0))
 
 
+def _branch_shift(a, b, y_centre):
+    """``A(1) y_centre / B(1)``: how far both branches move with the output's offset."""
+    gain = jnp.sum(b)
+    # (no shift where the output was not moved; no NaN for a failed start with B(1) = 0,
+    # whose shift means nothing)
+    return jnp.where(y_centre == 0, 0.0, (1.0 + jnp.sum(a)) * y_centre
+                     / jnp.where(gain == 0, 1.0, gain))
+
+
 def _to_recorded(theta, v_centre, y_centre, na: int, nb: int, m: int):
     """Flattened ``[a, b, c1, c2]`` solved on the centred records -> the same model on the
     records as recorded: the branches moved by ``A(1) y_centre / B(1)`` and re-expanded in
     powers of ``v``."""
     a, b = theta[:na], theta[na:na + nb]
-    gain = jnp.sum(b)
-    # (no shift where the output was not moved; no NaN for a failed start with B(1) = 0,
-    # whose shift means nothing)
-    delta = jnp.where(y_centre == 0, 0.0, (1.0 + jnp.sum(a)) * y_centre
-                      / jnp.where(gain == 0, 1.0, gain))
+    delta = _branch_shift(a, b, y_centre)
     t = recentring_matrix(v_centre, m)
     c1 = t @ theta[na + nb:na + nb + m].at[0].add(delta)
     c2 = t @ theta[na + nb + m:].at[0].add(delta)
@@ -117,9 +122,7 @@ def to_centred(model: Hammerstein, v_centre, y_centre) -> Hammerstein:
     branches moved by ``-A(1) y_centre / B(1)``, re-expanded in powers of
     ``v - v_centre``). Traceable."""
     bl, arx = model.backlash, model.arx
-    gain = jnp.sum(arx.b)
-    delta = jnp.where(y_centre == 0, 0.0, (1.0 + jnp.sum(arx.a)) * y_centre
-                      / jnp.where(gain == 0, 1.0, gain))
+    delta = _branch_shift(arx.a, arx.b, y_centre)
     t = recentring_matrix(-v_centre, bl.m)  # (powers of v -> powers of v - v_centre)
     return Hammerstein(type(bl)((t @ bl.c1).at[0].add(-delta), (t @ bl.c2).at[0].add(-delta)),
                        arx)

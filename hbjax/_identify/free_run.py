@@ -19,13 +19,11 @@ systems of the independent generator 1.3-36 %; the BRFD records 3-31 %; the Casc
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 
 from .._results import RESULTS
-from .loop import free_run_spread
-
-_spread_jit = jax.jit(free_run_spread)
+# (the loop judgement's compiled spread: one program for both judgements)
+from .loop import _spread_jit
 
 
 def judge_free_run(res, recordings):
