@@ -190,15 +190,38 @@ def extension_state(model: AbstractModel, v, y):
     own = getattr(model, "estimate_start", None)
     if own is not None:  # an extension with a state of its own (e.g. two tank levels)
         return own(v, y)
-    base = model.base
-    dtype = jnp.result_type(v, y, base.arx.a)
-    h = start_response(base.arx.a.astype(dtype), base.arx.nb, v.shape[0], dtype)
-    best = None
     # The base's play state is estimated on an output that still holds the effect's own
     # term (an offset, a drift, a hum), which can pull it off; the convention's rest
     # (u0 = 0) is tried too, so the estimate never fits worse than the zero start (an
     # offset drift simulated from rest fitted 99.5 % from the base's state alone).
-    for u0 in (estimate_initial_state(base, v, y).u0, jnp.zeros((), dtype)):
+    return _general_past(model, model.base, v, y,
+                         (estimate_initial_state(model.base, v, y).u0, 0.0))
+
+
+def hammerstein_state(model: Hammerstein, v, y):
+    """Initial state of a Hammerstein model and its free run from it.
+
+    :func:`hbjax.estimate_initial_state` covers every past where ``nb <= na`` (the output
+    lags span the equation errors the past leaves at the first ``n = na`` samples). Where
+    ``nb > na`` it holds the input lags before the record at the play state (a system at
+    rest in it), which a record cut from a longer run does not satisfy; there the past's
+    ``n = nb`` equation errors are fitted freely, as for a model extension, from the
+    estimated play state (MATLAB's ``'e'`` estimates the whole state too)."""
+    state = estimate_initial_state(model, v, y)
+    if model.arx.nb <= model.arx.na:
+        return state, None
+    return _general_past(model, model, v, y, (state.u0,))
+
+
+def _general_past(model, base, v, y, play_states):
+    """The free run of `model` from the best of `play_states`, plus the least-squares
+    response of ``base``'s linear block to free equation errors at its first
+    ``max(na, nb)`` samples: ``(InitialState, y_hat)``."""
+    dtype = jnp.result_type(v, y, base.arx.a)
+    h = start_response(base.arx.a.astype(dtype), base.arx.nb, v.shape[0], dtype)
+    best = None
+    for u0 in play_states:
+        u0 = jnp.asarray(u0, dtype)
         free = simulate(model, v, u0=u0).astype(dtype)
         coef = jnp.linalg.lstsq(h, y - free)[0]
         fitted = free + h @ coef
@@ -210,7 +233,34 @@ def extension_state(model: AbstractModel, v, y):
     lags = jax.jacfwd(lambda y0: injection(base, y0, jnp.zeros((), dtype), n))(
         jnp.zeros(na, dtype))
     y0 = jnp.linalg.lstsq(lags, coef)[0] if na else jnp.zeros(0, dtype)
-    return InitialState(y0, jnp.asarray(u0, dtype), jnp.sum((y - y_hat) ** 2)), y_hat
+    return InitialState(y0, u0, jnp.sum((y - y_hat) ** 2)), y_hat
+
+
+_PLAY_GRID = 33
+
+
+def play_state_for_prediction(model: AbstractModel, base: Hammerstein, v, y, skip: int):
+    """The play state ``u(-1)`` in the band ``[L(v(0)), H(v(0))]`` at the first input (the
+    states the play can hold there; beyond an edge it starts from that edge) whose one-step
+    predictions after the first `skip` samples fit best: a 33-point grid, then a second
+    one between the best point's neighbours. The convention's ``0`` is kept where it fits
+    as well, so a record from rest is scored as before."""
+    p1, p2 = float(base.backlash.p1(v[0])), float(base.backlash.p2(v[0]))
+    lo, hi = min(p1, p2), max(p1, p2)
+
+    def sse(u0):
+        return float(np.sum(np.asarray(y - predict(model, v, y, u0=u0))[skip:] ** 2))
+
+    best_u, best = 0.0, sse(0.0)
+    grid = np.linspace(lo, hi, _PLAY_GRID)
+    for _ in range(2):
+        costs = [sse(u) for u in grid]
+        k = int(np.argmin(costs))
+        if costs[k] < best:
+            best_u, best = float(grid[k]), costs[k]
+        step = grid[1] - grid[0] if len(grid) > 1 else 0.0
+        grid = np.linspace(max(grid[k] - step, lo), min(grid[k] + step, hi), _PLAY_GRID)
+    return best_u
 
 
 def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
@@ -231,7 +281,9 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
       and the figure's time axis is in seconds when its ``dt`` is known).
     - `initial_state`: ``"estimate"`` (default; output lags and play state estimated per
       model by :func:`hbjax.estimate_initial_state`, as MATLAB's
-      ``'InitialCondition', 'e'``: real records rarely start at rest at zero; for a model
+      ``'InitialCondition', 'e'``: real records rarely start at rest at zero; where
+      ``nb > na`` the input lags before the record are fitted too, as the past's
+      equation errors at the first ``nb`` samples (:func:`hammerstein_state`); for a model
       extension such as a diagnosis effect, :func:`extension_state`: the base's play
       state and the past's response through the base's linear block by least squares,
       the predictors starting from the play state only; an extension with a state of its
@@ -308,7 +360,7 @@ def _run(model, covariance, v, y, initial_state, horizon):
         state, free_run = extension_state(model, v, y)
         kw = {"u0": state.u0}  # the predictors: the play state only
     elif initial_state == "estimate":
-        state = estimate_initial_state(model, v, y)
+        state, free_run = hammerstein_state(model, v, y)
         kw = {"u0": state.u0, "y0": state.y0}
     if horizon is None:
         y_hat = simulate(model, v, **kw) if free_run is None else free_run

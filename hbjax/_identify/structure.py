@@ -9,15 +9,17 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from .._core import display
+from .._core.initial import estimate_initial_state
 from .._core.model import Hammerstein
 from .._core.progress import check_progress, progress_bar
 from .._core.simulate import predict, simulate
 from .._results import RESULTS
 from .._misc import positive_int
-from .compare import compare
+from .compare import compare, hammerstein_state, play_state_for_prediction
 from .._diagnose.residual_tests import no_spread
 from .fit import fit
 from .recordings import as_recordings, check_branch_degree, check_criterion
+from .stable import check_initial_state
 
 RANKINGS = ("bic", "aic", "validation")
 
@@ -111,13 +113,30 @@ def _orders(x, name: str, minimum: int) -> tuple:
     return tuple(sorted({positive_int(v, name, minimum=minimum) for v in values}))
 
 
-def _loss(model, recordings, criterion):
-    """Mean squared prediction (or simulation) error over all estimation records."""
+def _loss(model, recordings, criterion, initial_state, skip):
+    """Mean squared prediction (or simulation) error over all estimation records, after
+    the first `skip` samples of each.
+
+    With ``initial_state="estimate"`` each record's unknown start is estimated as
+    :func:`hbjax.fit` leaves it out of its criterion: the predictor starts from the play
+    state that predicts best, the free run from the state :func:`hbjax.compare`
+    estimates. Scoring every structure from a zero start instead charged a record's
+    offset to the first ``max(na, nb)`` one-step errors, so the larger ``na`` lost on a
+    record with an output offset of 1000 (BIC picked ``na = 1`` over the true 2)."""
     total, count = 0.0, 0
     for v, y in recordings:
-        y_hat = predict(model, v, y) if criterion == "prediction" else simulate(model, v)
-        total += float(jnp.sum((y - y_hat) ** 2))
-        count += int(y.shape[0])
+        if initial_state == "zero":
+            y_hat = predict(model, v, y) if criterion == "prediction" else simulate(model, v)
+        elif criterion == "prediction":
+            n = max(model.arx.na, model.arx.nb)
+            y_hat = predict(model, v, y, u0=play_state_for_prediction(model, model, v, y, n))
+        else:
+            y_hat = hammerstein_state(model, v, y)[1]
+            if y_hat is None:
+                state = estimate_initial_state(model, v, y)
+                y_hat = simulate(model, v, u0=state.u0, y0=state.y0)
+        total += float(jnp.sum((y[skip:] - y_hat[skip:]) ** 2))
+        count += int(y.shape[0]) - skip
     return total / count, count
 
 
@@ -128,15 +147,15 @@ def _validation_fit(model, validation):
         return -np.inf
 
 
-def _score(recs, val, a, b, c, key, starts, criterion, fit_kw):
+def _score(recs, val, a, b, c, key, starts, criterion, initial_state, skip, fit_kw):
     """One row of the table: fit the orders ``(a, b, c)`` and score them."""
     res = fit(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
-              throw=False, **fit_kw)
+              initial_state=initial_state, throw=False, **fit_kw)
     ok = bool(res.result == RESULTS.successful)
     # (a fit whose branches are known at the levels only reached its optimum: its loss
     # still compares the orders; measured in tests/test_validation_tools.py)
     ranked = ok or bool(res.result == RESULTS.branches_between_levels)
-    loss, n = _loss(res.model, recs, criterion) if ranked else (np.inf, 1)
+    loss, n = _loss(res.model, recs, criterion, initial_state, skip) if ranked else (np.inf, 1)
     k = a + b + 2 * c - 1
     log_loss = math.log(loss) if 0 < loss < np.inf else (np.inf if loss else -np.inf)
     vfit = _validation_fit(res.model, val) if (ranked and val is not None) else np.nan
@@ -146,6 +165,7 @@ def _score(recs, val, a, b, c, key, starts, criterion, fit_kw):
 
 def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction",
                      validation=None, rank_by=None, starts: int = 32,
+                     initial_state: str = "estimate",
                      progress: bool | dict = True) -> StructureSelection:
     """Select the orders ``(na, nb, m)`` of an HB-Hammerstein model from recordings.
 
@@ -168,6 +188,10 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
       fit first; needs `validation`). BIC is consistent (it picks the true orders as the
       data grow); the validation fit rarely separates the true orders from larger ones.
     - `starts`: starts per :func:`hbjax.fit`.
+    - `initial_state`: ``"estimate"`` (default, as :func:`hbjax.fit`: each record's unknown
+      start is estimated, and every structure is scored after the first ``max(na, nb)``
+      samples of its largest candidate, so all are scored on the same samples) or
+      ``"zero"`` (the paper's records from rest, scored from sample 0).
     - `progress`: a progress bar over the structures once the work takes more than 2 s
       (``False`` silences it; a dict passes tqdm options, see ``docs/performance.md``).
 
@@ -175,6 +199,7 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     selected ``(na, nb, m)``.
     """
     check_criterion(criterion)
+    check_initial_state(initial_state)
     check_progress(progress)
     na_list = _orders(na, "na", 0)
     nb_list = _orders(nb, "nb", 1)
@@ -193,10 +218,16 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
         raise ValueError("`rank_by='validation'` needs `validation` records.")
     fit_kw = {"progress": False} if "progress" in inspect.signature(fit).parameters else {}
     grid = list(itertools.product(na_list, nb_list, m_list))
+    skip = max(na_list[-1], nb_list[-1]) if initial_state == "estimate" else 0
+    short = min(int(np.asarray(y).shape[0]) for _, y in recs)
+    if short <= skip + 1:
+        raise ValueError(f"`recordings`: the shortest record has {short} samples; scoring "
+                         f"orders up to max(na, nb) = {skip} needs more than {skip + 1}.")
     rows = []
     with progress_bar(progress, total=len(grid), desc="select_structure") as bar:
         for a, b, c in grid:
-            rows.append(_score(recs, val, a, b, c, key, starts, criterion, fit_kw))
+            rows.append(_score(recs, val, a, b, c, key, starts, criterion, initial_state,
+                               skip, fit_kw))
             bar.update(1)
     column = {"bic": 3, "aic": 4}
     if rank_by == "validation":
