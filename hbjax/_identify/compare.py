@@ -329,6 +329,18 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
                          f"got {len(names)}.")
     v, y, dt = _record(v, y)
     y_np = np.asarray(y)
+    if initial_state == "estimate":
+        for k, mdl in enumerate(models):
+            base = mdl if isinstance(mdl, Hammerstein) else mdl.base
+            start = max(base.arx.na, base.arx.nb) + 1  # the past's equation errors, u0
+            if y_np.shape[0] < 2 * start:
+                # an estimated start that fits as many samples as it has numbers would
+                # call any model a 100 % fit
+                raise ValueError(
+                    f"`v`, `y`: {y_np.shape[0]} samples are too few to judge "
+                    f"{'`model`' if single else f'`model[{k}]`'} with "
+                    f"initial_state='estimate': its estimated start fits up to {start} "
+                    f"numbers; give at least {2 * start} samples, or initial_state='zero'.")
     if no_spread(y_np):
         raise ValueError(
             "`y` is constant: the fit 100 (1 - ||y - y_hat|| / ||y - mean(y)||) is undefined "

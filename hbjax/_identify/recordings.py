@@ -10,6 +10,7 @@ from .._misc import (
 )
 from .criteria import CRITERIA
 from .._core.model import Hammerstein
+from .._core.backlash import MAX_COEFFICIENTS
 
 
 def _is_pair(x) -> bool:
@@ -135,6 +136,10 @@ def check_branch_degree(m, name: str = "m") -> int:
             f"`{name}` must be an integer >= 2 to identify a model, got {m}: with m = 1 both "
             "branches are constants, the backlash output never follows the input and the "
             "input has no effect on the output.")
+    if m > MAX_COEFFICIENTS:
+        raise ValueError(
+            f"`{name}` must be at most {MAX_COEFFICIENTS} (coefficients per branch, degree "
+            f"{MAX_COEFFICIENTS - 1}), got {m}.")
     return m
 
 

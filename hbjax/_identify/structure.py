@@ -204,7 +204,8 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     na_list = _orders(na, "na", 0)
     nb_list = _orders(nb, "nb", 1)
     m_list = _orders(m, "m", 1)
-    check_branch_degree(m_list[0])  # the smallest
+    for order in m_list:  # every one, before any fit runs
+        check_branch_degree(order)
     recs = as_recordings(recordings, "recordings")
     val = None if validation is None else as_recordings(validation, "validation")
     for k, (_, y_val) in enumerate(val or ()):
