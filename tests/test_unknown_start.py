@@ -57,6 +57,19 @@ def test_compare_reproduces_a_noise_free_record_whose_input_lags_outnumber_its_o
         model, v, _, free = _tail_of_a_run(2000 + seed, T=300, nb_over_na=True)
         assert model.arx.nb > model.arx.na
         assert hbjax.compare(model, v, free).fit > 99.999, seed
+        # the predictors start from the same past: one step, a few, and the free run again
+        for horizon in (1, 3, v.shape[0] + 5):
+            assert hbjax.compare(model, v, free, horizon=horizon).fit > 99.999, (seed, horizon)
+
+
+def test_refine_takes_records_shorter_than_the_residual_tests_lags():
+    """A record of 40 samples among longer ones (and alone) is refined; its residual check
+    runs on fewer lags instead of refusing with resid's ``lags`` error."""
+    model, v, y, _ = _tail_of_a_run(4004, T=600, cut=0)
+    truth = hbjax.normalise_static_gain(model)
+    for records in ([(v, y), (v[:40], y[:40])], [(v[:40], y[:40])]):
+        res = hbjax.refine(truth, records, throw=False)
+        assert np.isfinite(res.stats["cost"])
 
 
 def test_select_structure_scores_a_record_with_an_offset_as_the_record_without():

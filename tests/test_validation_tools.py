@@ -363,6 +363,9 @@ def test_bad_input_names_the_argument(system):
         hbjax.fit((v, y), na=1, nb=1, m=65, key=key, progress=False)
     with pytest.raises(ValueError, match="`m` must be at most 64"):
         hbjax.select_structure((v, y), na=1, nb=1, m=[2, 65], key=key, progress=False)
+    with pytest.raises(ValueError, match="`validation` record 0 has 5 samples"):
+        hbjax.select_structure((v, y), na=[1, 2], nb=1, m=2, key=key, progress=False,
+                               validation=(v[:5], y[:5]))
 
 
 def test_compare_ahead_promotes_float32_records_like_predict(system):

@@ -29,17 +29,19 @@ def check_horizon(horizon):
 
 
 @eqx.filter_jit
-def _ahead(model: Hammerstein, v, y, horizon: int, u0, y0):
+def _ahead(model: Hammerstein, v, y, horizon: int, u0, past):
     """``y_hat(t | t - horizon)``: measured outputs up to ``t - horizon``, the model's own
     predictions after. With ``z_s(t)`` the ``s``-step prediction and ``z_r = y`` for
-    ``r <= 0``: ``z_s(t) = -sum_i a_i z_{s-i}(t-i) + sum_j b_j u(t-j)``."""
+    ``r <= 0``: ``z_s(t) = -sum_i a_i z_{s-i}(t-i) + sum_j b_j u(t-j) + d(t)``, ``d`` the
+    equation errors `past` (``None``: none) the record's past leaves at its first
+    ``max(na, nb)`` samples."""
     arx = model.arx
     u = play_trajectory(model.backlash, v, u0)
     base = jnp.zeros_like(v)
     for j in range(arx.nb):
         base = base + arx.b[j] * lagged(u, j + 1)
-    if y0 is not None:
-        base = base + injection(model, y0, u0, v.shape[0])
+    if past is not None:
+        base = base.at[:past.shape[0]].add(past[:v.shape[0]])
     if arx.na == 0:
         return base
 
@@ -53,9 +55,20 @@ def _ahead(model: Hammerstein, v, y, horizon: int, u0, y0):
     return carry[0]
 
 
-def predict_ahead(model: AbstractModel, v, y, horizon: int, *, u0=0.0, y0=None):
+def predict_ahead(model: AbstractModel, v, y, horizon: int, *, u0=0.0, y0=None, past=None):
     """``horizon``-step-ahead prediction (1: :func:`hbjax.predict`; at least the record's
-    length: the free run of :func:`hbjax.simulate`)."""
+    length: the free run of :func:`hbjax.simulate`). `past`, if given, replaces `y0`: the
+    equation errors at the first ``max(na, nb)`` samples that the record's past leaves
+    (:func:`hammerstein_state`; any past, also input lags that are not the play state)."""
+    if past is not None:
+        dtype = float_dtype(model, v, y)
+        past = jnp.asarray(past, dtype)
+        if horizon >= int(np.shape(v)[0]):
+            free = simulate(model, v, u0=u0).astype(dtype)
+            h = start_response(model.arx.a.astype(dtype), model.arx.nb, free.shape[0], dtype)
+            return free + h @ past
+        return _ahead(model, jnp.asarray(v, dtype), jnp.asarray(y, dtype), horizon,
+                      jnp.asarray(u0, dtype), past)
     if horizon >= int(np.shape(v)[0]):
         return simulate(model, v, u0=u0, y0=y0)
     if horizon == 1:
@@ -67,8 +80,10 @@ def predict_ahead(model: AbstractModel, v, y, horizon: int, *, u0=0.0, y0=None):
     # as hbjax.predict does
     dtype = float_dtype(model, v, y)
     v, y = jnp.asarray(v, dtype), jnp.asarray(y, dtype)
-    y0 = None if y0 is None else jnp.asarray(y0, dtype)
-    return _ahead(model, v, y, horizon, jnp.asarray(u0, dtype), y0)
+    u0 = jnp.asarray(u0, dtype)
+    past = None if y0 is None else injection(model, jnp.asarray(y0, dtype), u0,
+                                             max(model.arx.na, model.arx.nb))
+    return _ahead(model, v, y, horizon, u0, past)
 
 
 def _fit_text(fit: float) -> str:
@@ -90,7 +105,10 @@ class Comparison(eqx.Module):
       estimation error only, not the noise); ``NaN`` for a plain model or a prediction
       horizon. Same shape as `y_hat`.
     - `initial_states`: the :class:`hbjax.InitialState` used per model (``None`` for zero
-      initial conditions).
+      initial conditions). ``hbjax.simulate(model, v, u0=s.u0, y0=s.y0)`` reproduces the
+      free run where ``nb <= na``; where ``nb > na`` the runs also hold the fitted input
+      lags before the record, which ``(y0, u0)`` cannot express (its ``y0`` is their
+      least-squares image; :func:`hammerstein_state`).
     - `names`, `horizon` (``None``: free run), `initial_state`.
     """
 
@@ -195,7 +213,7 @@ def extension_state(model: AbstractModel, v, y):
     # (u0 = 0) is tried too, so the estimate never fits worse than the zero start (an
     # offset drift simulated from rest fitted 99.5 % from the base's state alone).
     return _general_past(model, model.base, v, y,
-                         (estimate_initial_state(model.base, v, y).u0, 0.0))
+                         (estimate_initial_state(model.base, v, y).u0, 0.0))[:2]
 
 
 def hammerstein_state(model: Hammerstein, v, y):
@@ -206,17 +224,23 @@ def hammerstein_state(model: Hammerstein, v, y):
     ``nb > na`` it holds the input lags before the record at the play state (a system at
     rest in it), which a record cut from a longer run does not satisfy; there the past's
     ``n = nb`` equation errors are fitted freely, as for a model extension, from the
-    estimated play state (MATLAB's ``'e'`` estimates the whole state too)."""
+    estimated play state (MATLAB's ``'e'`` estimates the whole state too).
+
+    **Returns:** ``(state, y_hat, past)``: the :class:`InitialState` (where ``nb > na``
+    its ``y0`` is the least-squares image of the fitted past: a run from ``(y0, u0)``
+    reproduces `y_hat` only where the past is one of a system at rest in its play state),
+    the free run from the estimated start and the past's equation errors at the first
+    ``nb`` samples (``None``, ``None`` where ``nb <= na``)."""
     state = estimate_initial_state(model, v, y)
     if model.arx.nb <= model.arx.na:
-        return state, None
+        return state, None, None
     return _general_past(model, model, v, y, (state.u0,))
 
 
 def _general_past(model, base, v, y, play_states):
     """The free run of `model` from the best of `play_states`, plus the least-squares
     response of ``base``'s linear block to free equation errors at its first
-    ``max(na, nb)`` samples: ``(InitialState, y_hat)``."""
+    ``max(na, nb)`` samples: ``(InitialState, y_hat, equation errors)``."""
     dtype = jnp.result_type(v, y, base.arx.a)
     h = start_response(base.arx.a.astype(dtype), base.arx.nb, v.shape[0], dtype)
     best = None
@@ -233,10 +257,16 @@ def _general_past(model, base, v, y, play_states):
     lags = jax.jacfwd(lambda y0: injection(base, y0, jnp.zeros((), dtype), n))(
         jnp.zeros(na, dtype))
     y0 = jnp.linalg.lstsq(lags, coef)[0] if na else jnp.zeros(0, dtype)
-    return InitialState(y0, u0, jnp.sum((y - y_hat) ** 2)), y_hat
+    return InitialState(y0, u0, jnp.sum((y - y_hat) ** 2)), y_hat, coef
 
 
 _PLAY_GRID = 33
+
+
+@eqx.filter_jit
+def _prediction_sse(model, v, y, grid, skip: int):
+    """Sum of squared one-step errors after `skip` samples, per play state in `grid`."""
+    return jax.vmap(lambda u0: jnp.sum((y - predict(model, v, y, u0=u0))[skip:] ** 2))(grid)
 
 
 def play_state_for_prediction(model: AbstractModel, base: Hammerstein, v, y, skip: int):
@@ -245,23 +275,21 @@ def play_state_for_prediction(model: AbstractModel, base: Hammerstein, v, y, ski
     predictions after the first `skip` samples fit best: a 33-point grid, then a second
     one between the best point's neighbours. The convention's ``0`` is kept where it fits
     as well, so a record from rest is scored as before."""
+    dtype = jnp.result_type(v, y, base.arx.a)
+    v, y = jnp.asarray(v, dtype), jnp.asarray(y, dtype)
     p1, p2 = float(base.backlash.p1(v[0])), float(base.backlash.p2(v[0]))
     lo, hi = min(p1, p2), max(p1, p2)
-
-    def sse(u0):
-        return float(np.sum(np.asarray(y - predict(model, v, y, u0=u0))[skip:] ** 2))
-
-    best_u, best = 0.0, sse(0.0)
+    best_u = 0.0
+    best = float(_prediction_sse(model, v, y, jnp.zeros(1, dtype), skip)[0])
     grid = np.linspace(lo, hi, _PLAY_GRID)
     for _ in range(2):
-        costs = [sse(u) for u in grid]
+        costs = np.asarray(_prediction_sse(model, v, y, jnp.asarray(grid, dtype), skip))
         k = int(np.argmin(costs))
         if costs[k] < best:
-            best_u, best = float(grid[k]), costs[k]
-        step = grid[1] - grid[0] if len(grid) > 1 else 0.0
+            best_u, best = float(grid[k]), float(costs[k])
+        step = grid[1] - grid[0]
         grid = np.linspace(max(grid[k] - step, lo), min(grid[k] + step, hi), _PLAY_GRID)
     return best_u
-
 
 def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
             names=None) -> Comparison:
@@ -367,15 +395,17 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
 def _run(model, covariance, v, y, initial_state, horizon):
     """One row of :func:`compare`: ``(initial state or None, y_hat, y_std)``. An output
     that overflows (an unstable model) is refused: its fit would be NaN."""
-    state, kw, free_run = None, {}, None
+    state, kw, free_run, past = None, {}, None, None
     if initial_state == "estimate" and not isinstance(model, Hammerstein):
         state, free_run = extension_state(model, v, y)
         kw = {"u0": state.u0}  # the predictors: the play state only
     elif initial_state == "estimate":
-        state, free_run = hammerstein_state(model, v, y)
+        state, free_run, past = hammerstein_state(model, v, y)
         kw = {"u0": state.u0, "y0": state.y0}
     if horizon is None:
         y_hat = simulate(model, v, **kw) if free_run is None else free_run
+    elif past is not None:
+        y_hat = predict_ahead(model, v, y, horizon, u0=state.u0, past=past)
     else:
         y_hat = predict_ahead(model, v, y, horizon, **kw)
     y_hat = np.asarray(y_hat)

@@ -234,8 +234,14 @@ def residuals_suspect(res, records, criterion) -> bool:
     from .residual_analysis import resid  # (NumPy report; imported where it is used)
 
     level = LEVEL / (2 * len(records))
+    n_lags = max(res.model.arx.na, res.model.arx.nb)
     for v, y in records:
-        r = resid(res.model, np.asarray(v), np.asarray(y))
+        # resid's 25 lags need 51 residuals; a shorter record is tested on fewer lags
+        lags = min(25, (int(np.shape(v)[0]) - n_lags - 1) // 2)
+        if lags < 1:
+            continue
+        # (the play state its criterion starts from: the convention's)
+        r = resid(res.model, np.asarray(v), np.asarray(y), lags=lags, initial_state="zero")
         if not (r.p_whiteness >= level and r.p_independence >= level):
             return True
     return False

@@ -143,7 +143,9 @@ def _loss(model, recordings, criterion, initial_state, skip):
 def _validation_fit(model, validation):
     try:
         return float(np.mean([compare(model, v, y).fit for v, y in validation]))
-    except ValueError:  # an unstable model's free run overflows
+    except ValueError as exc:  # an unstable model's free run overflows
+        if "overflows" not in str(exc):
+            raise
         return -np.inf
 
 
@@ -220,6 +222,12 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     fit_kw = {"progress": False} if "progress" in inspect.signature(fit).parameters else {}
     grid = list(itertools.product(na_list, nb_list, m_list))
     skip = max(na_list[-1], nb_list[-1]) if initial_state == "estimate" else 0
+    for k, (_, y_val) in enumerate(val or ()):
+        need = 2 * (max(na_list[-1], nb_list[-1]) + 1)  # compare's estimated start
+        if np.asarray(y_val).shape[0] < need:
+            raise ValueError(f"`validation` record {k} has {np.asarray(y_val).shape[0]} "
+                             f"samples; judging orders up to max(na, nb) = "
+                             f"{need // 2 - 1} from an estimated start needs at least {need}.")
     short = min(int(np.asarray(y).shape[0]) for _, y in recs)
     if short <= skip + 1:
         raise ValueError(f"`recordings`: the shortest record has {short} samples; scoring "
