@@ -276,9 +276,6 @@ def cmd_identify_giri(args) -> int:
 
 
 def _read_json(path, what):
-    import json
-    import pathlib
-
     from .._io.files import check_readable
     from .._io.readers import read_json_text
 
