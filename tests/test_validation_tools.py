@@ -262,6 +262,15 @@ def test_resid_false_alarm_rate_and_power():
     assert biased == seeds
 
 
+def test_resid_takes_a_fit_result_as_compare_does():
+    model = hbjax.default_system()
+    rng = np.random.default_rng(7)
+    v = rng.uniform(-8, 8, 60).repeat(10)
+    y = np.asarray(hbjax.simulate(model, v, 0.3 * rng.normal(size=v.size)))
+    res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.key(0), starts=4, progress=False)
+    assert hbjax.resid(res, v, y).ljung_box == hbjax.resid(res.model, v, y).ljung_box
+
+
 def test_diagnose_independence_test_holds_its_level_for_coloured_inputs():
     """The diagnosis's test of residuals against past inputs is chi-square at its level
     whatever the input's colour: white residuals against inputs held for 1-40 samples

@@ -59,6 +59,7 @@ def output_lags(model: AbstractModel, y0, dtype=None) -> jax.Array:
     if y0.shape != (na,):
         raise ValueError(
             f"`y0` must hold the na = {na} output lags [y(-1), ..., y(-{na})], got {given}."
+            if na else f"`y0` must be empty: the model has no output lags (na = 0), got {given}."
         )
     return check_finite(y0, "y0")
 

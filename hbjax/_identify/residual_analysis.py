@@ -12,6 +12,7 @@ from .._core.simulate import predict
 from .._diagnose.residual_tests import Z99, coloured_input_statistic, correlation
 from .._misc import chi2_sf, positive_int
 from .compare import _record, play_state_for_prediction
+from .refine_result import AbstractRefinement
 from .stable import check_initial_state
 
 
@@ -110,13 +111,17 @@ def resid(model: AbstractModel, v, y=None, *, lags: int = 25,
     first input whose predictions fit best (:func:`play_state_for_prediction`); ``"zero"``
     keeps the convention.
 
-    **Arguments:** `model`, `v`, `y` (or an :class:`hbjax.Recording` as `v`), `lags`,
+    **Arguments:** `model` (a model, or a result of :func:`hbjax.fit` / :func:`hbjax.refine`),
+    `v`, `y` (or an :class:`hbjax.Recording` as `v`), `lags`,
     `initial_state` (``"estimate"`` or ``"zero"``).
 
     **Returns:** a :class:`ResidualAnalysis`.
     """
+    if isinstance(model, AbstractRefinement):  # a result of fit / refine, as compare takes
+        model = model.model
     if not isinstance(model, AbstractModel):
-        raise TypeError(f"`model` must be an hbjax model, got {type(model).__name__}.")
+        raise TypeError(f"`model` must be an hbjax model or a result of fit / refine, got "
+                        f"{type(model).__name__}.")
     lags = positive_int(lags, "lags")
     check_initial_state(initial_state)
     v, y, dt = _record(v, y)

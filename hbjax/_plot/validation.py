@@ -70,6 +70,8 @@ def plot_resid(result, v=None, y=None, *, axes=None, lags=25):
     """
     axes = checks.axes(axes, "axes", count=2)
     if not isinstance(result, ResidualAnalysis):
+        if isinstance(getattr(result, "model", None), AbstractModel):  # a fit / refine result
+            result = result.model
         if not isinstance(result, AbstractModel):
             raise TypeError("`result` must be an hbjax.ResidualAnalysis (from hbjax.resid) or "
                             f"a model analysed on `v` and `y`, got {type(result).__name__}.")
