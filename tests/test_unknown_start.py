@@ -78,7 +78,7 @@ def test_select_structure_scores_a_record_with_an_offset_as_the_record_without()
     selected orders."""
     model, v, y, _ = _tail_of_a_run(3003, T=1200)
     na, nb, m = model.arx.na, model.arx.nb, model.backlash.m
-    orders = dict(na=[na, na + 1], nb=nb, m=m, key=jax.random.key(0), starts=8, progress=False)
+    orders = dict(na=[na, na + 1], nb=nb, m=m, key=jax.random.key(0), starts=4, progress=False)
     plain = hbjax.select_structure((v, y), **orders)
     moved = hbjax.select_structure((v, y + 1000.0 * np.ptp(y)), **orders)
     assert plain.best == moved.best
