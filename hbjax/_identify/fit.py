@@ -23,7 +23,8 @@ from .._core.mappings import release_compiled_programs
 from .._core.progress import check_progress, progress_bar
 from .._misc import check_bool, check_key, is_traced, positive_int
 from .._core.precision import require_x64
-from .centring import in_recorded_coordinates, less_centres, record_centres
+from .centring import (ANCHOR_SHIFT, in_recorded_coordinates, less_centres, output_range,
+                       record_centres, start_centres)
 from .criteria import data_scale
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
@@ -281,6 +282,46 @@ _polish_jit = eqx.filter_jit(polish_best)
 _polished_jit = eqx.filter_jit(polished_best)
 
 
+def _solve(recs, key, centres, traced, loop_tolerance, options):
+    """The starts, the polish and the judgements of :func:`fit` on the records less
+    `centres`, reported on the records as recorded."""
+    moved = any(is_traced(c) or float(c) != 0.0 for c in centres)
+    solved = less_centres(recs, *centres) if moved else recs
+    starts, m, criterion = options["starts"], options["m"], options["criterion"]
+    res = _fit_jit(solved, key, polish=traced, **options)
+    # A closing start was solved on the core operator already (under jit, fit_traceable
+    # polished the best start itself).
+    if not traced and (
+            (bool(res.branches_cross)
+             and not int(res.best_index) >= starts - closing_count(starts, m))
+            or res.result != RESULTS.successful):
+        # Only a loop closing inside the data (or no success) needs the core solve of
+        # the best start: compiled on its own, from the starts' result.
+        res = _polish_jit(res, solved, criterion=criterion, max_steps=options["max_steps"],
+                          min_sim_fit=options["min_sim_fit"],
+                          initial_state=options["initial_state"])
+    if not traced and gain_vanishes(res.model):
+        res = better_in_paper_gauge(res, solved, key, _fit_jit, _polished_jit, options)
+    res = judge_branches(judge_loop(res, solved, loop_tolerance), solved)
+    if not traced:
+        res = judge_free_run(res, solved)
+    if moved:
+        # (judged on the centred records; a constant term that draws on an
+        # unidentified a or b is unidentified on the records as recorded)
+        res = refuse_unseen(in_recorded_coordinates(res, *centres, _starts_summary))
+    return res
+
+
+def fits_better(res: "FitResult", than: "FitResult") -> bool:
+    """A success over anything else, then the higher free-run fit on the estimation
+    records from the initial state :func:`hbjax.estimate_initial_state` finds (the same
+    yardstick whatever start the criterion assumed)."""
+    ok, ok_than = res.result == RESULTS.successful, than.result == RESULTS.successful
+    if bool(ok) != bool(ok_than):
+        return bool(ok)
+    return bool(res.sim_fit_pooled > than.sim_fit_pooled)
+
+
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         criterion: str = "prediction", max_steps: int = 256,
         min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "estimate",
@@ -375,36 +416,23 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     # Records far from zero are solved less their centres (centring.py: the powers of v
     # are nearly collinear there, and an output offset swamps the output's unit); the
     # result is reported in the records' own coordinates.
+    options = dict(na=na, nb=nb, m=m, starts=starts, criterion=criterion,
+                   max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit),
+                   initial_state=initial_state)
+    traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
     centres = record_centres(recs, initial_state)
-    moved = any(is_traced(c) or float(c) != 0.0 for c in centres)
-    solved = less_centres(recs, *centres) if moved else recs
     # The starts run inside one compiled program: the bar shows the elapsed time.
     with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
-        options = dict(na=na, nb=nb, m=m, starts=starts, criterion=criterion,
-                       max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit),
-                       initial_state=initial_state)
-        traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
-        res = _fit_jit(solved, key, polish=traced, **options)
-        # A closing start was solved on the core operator already (under jit, fit_traceable
-        # polished the best start itself).
-        if not traced and (
-                (bool(res.branches_cross)
-                 and not int(res.best_index) >= starts - closing_count(starts, m))
-                or res.result != RESULTS.successful):
-            # Only a loop closing inside the data (or no success) needs the core solve of
-            # the best start: compiled on its own, from the starts' result.
-            res = _polish_jit(res, solved, criterion=criterion, max_steps=max_steps,
-                              min_sim_fit=options["min_sim_fit"],
-                              initial_state=initial_state)
-        if not traced and gain_vanishes(res.model):
-            res = better_in_paper_gauge(res, solved, key, _fit_jit, _polished_jit, options)
-        res = judge_branches(judge_loop(res, solved, loop_tolerance), solved)
-        if not traced:
-            res = judge_free_run(res, solved)
-        if moved:
-            # (judged on the centred records; a constant term that draws on an
-            # unidentified a or b is unidentified on the records as recorded)
-            res = refuse_unseen(in_recorded_coordinates(res, *centres, _starts_summary))
+        res = _solve(recs, key, centres, traced, loop_tolerance, options)
+        if initial_state == "estimate" and not traced:
+            # The criterion's play operator starts at rest at the output centre; a record
+            # that starts elsewhere may be fitted better at rest at its first output.
+            anchored = start_centres(recs)
+            if float(jnp.abs(anchored[1] - centres[1])) > ANCHOR_SHIFT * output_range(recs):
+                other = _solve(recs, key, (centres[0], anchored[1]), traced, loop_tolerance,
+                               options)
+                if fits_better(other, res):
+                    res = other
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
