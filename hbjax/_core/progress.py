@@ -81,12 +81,13 @@ def make_bar(progress, *, total=None, desc=None, unit="it", live=False):
     progress = check_progress(progress)
     if not progress:
         return NullBar()
-    options = {"delay": DELAY, "file": sys.stderr, "dynamic_ncols": True, "leave": True}
+    options = {"delay": DELAY, "file": sys.stderr, "dynamic_ncols": True, "leave": True,
+               "total": total, "desc": desc, "unit": unit}
     if isinstance(progress, dict):
-        options.update(progress)
+        options.update(progress)  # the user's options override the defaults, `desc` too
     elif not _interactive():
         return NullBar()
-    bar = _tqdm_class()(total=total, desc=desc, unit=unit, **options)
+    bar = _tqdm_class()(**options)
     if live:
         _start_ticker(bar, float(options.get("delay", DELAY)))
     return bar

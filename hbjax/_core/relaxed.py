@@ -17,7 +17,8 @@ so the input's weight in ``u(t)`` is a sigmoid of the distance to the band's edg
 of ``tau``: never zero for ``eps > 0``, and the exact operator as ``eps -> 0`` (each step
 is within ``tau log 2`` of the exact one, and the play operator does not amplify errors:
 it is 1-Lipschitz in ``u(t-1)``). Where the band has zero width (``H = L``) the
-temperature is zero and the exact operator is used. Everything is computed in the dtype
+temperature is zero and the exact operator is used, as where the temperature is below the
+rounding of the values it smooths (a smoothing it cannot represent). Everything is computed in the dtype
 of the inputs (float32 stays float32).
 """
 
@@ -33,13 +34,19 @@ def _smooth_max(a, b, tau, positive):
     return jnp.where(positive, soft, jnp.maximum(a, b))
 
 
+def _resolved(tau, a, b):
+    """Where the temperature is above the rounding of the values it smooths: below it the
+    smoothing changes nothing representable, and its derivative (``a / tau^2``) would
+    overflow into NaN gradients (``smoothing=1e-20`` in float32 gave 200 of 200)."""
+    return tau > jnp.finfo(tau.dtype).eps * (jnp.abs(a) + jnp.abs(b))
+
+
 def relaxed_step(low, high, u_prev, eps):
     """One relaxed play step in the band ``[low, high]`` (sorted), temperature
     ``eps * (high - low)``."""
     tau = eps * (high - low)
-    positive = tau > 0
-    raised = _smooth_max(u_prev, low, tau, positive)
-    return -_smooth_max(-raised, -high, tau, positive)
+    raised = _smooth_max(u_prev, low, tau, _resolved(tau, u_prev, low))
+    return -_smooth_max(-raised, -high, tau, _resolved(tau, raised, high))
 
 
 class RelaxedBacklash(Backlash):

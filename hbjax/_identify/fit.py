@@ -41,7 +41,7 @@ from .refine import check_floor, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
 from .free_run import judge_free_run
 from .undetermined import judge_branches, refuse_unseen
-from .refine_result import AbstractRefinement, RefinementError
+from .refine_result import AbstractRefinement, RefinementError, fits_better
 
 
 class FitResult(AbstractRefinement):
@@ -312,16 +312,6 @@ def _solve(recs, key, centres, traced, loop_tolerance, options):
     return res
 
 
-def fits_better(res: "FitResult", than: "FitResult") -> bool:
-    """A success over anything else, then the higher free-run fit on the estimation
-    records from the initial state :func:`hbjax.estimate_initial_state` finds (the same
-    yardstick whatever start the criterion assumed)."""
-    ok, ok_than = res.result == RESULTS.successful, than.result == RESULTS.successful
-    if bool(ok) != bool(ok_than):
-        return bool(ok)
-    return bool(res.sim_fit_pooled > than.sim_fit_pooled)
-
-
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         criterion: str = "prediction", max_steps: int = 256,
         min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "estimate",
@@ -374,7 +364,11 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     - `initial_state`: ``"estimate"`` (default: real records rarely start at rest) or
       ``"zero"`` (the paper's convention); see :func:`hbjax.refine`. With ``"estimate"``
       the criterion leaves the unknown past out and `sim_fit` starts from the initial
-      state :func:`hbjax.estimate_initial_state` finds.
+      state :func:`hbjax.estimate_initial_state` finds. The criterion's play operator
+      starts at rest at the output's centre (zero for records near zero); where the
+      records' first outputs lie farther from it than 5 % of the output's range, the
+      starts are solved a second time at rest there, and the result whose `sim_fit` is
+      higher is kept (a success first). Not under ``jax.jit``.
     - `loop_tolerance`: as in :func:`hbjax.refine` (default here 1 %): the best start,
       where its loop closes inside the data, is a success only if its own covariance
       predicts a free-run fit shortfall of at most this many percent

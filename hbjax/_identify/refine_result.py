@@ -311,3 +311,13 @@ def extrapolated_ranges(active, data_range) -> dict:
             continue
         out[name] = [r for r in ((float(lo), float(a)), (float(b), float(hi))) if r[1] > r[0]]
     return out
+
+
+def fits_better(res: "AbstractRefinement", than: "AbstractRefinement") -> bool:
+    """A success over anything else, then the higher free-run fit on the estimation
+    records from the initial state :func:`hbjax.estimate_initial_state` finds (the same
+    yardstick whatever start the criterion assumed)."""
+    ok, ok_than = res.result == RESULTS.successful, than.result == RESULTS.successful
+    if bool(ok) != bool(ok_than):
+        return bool(ok)
+    return bool(res.sim_fit_pooled > than.sim_fit_pooled)
