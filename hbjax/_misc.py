@@ -48,6 +48,20 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None, host: b
         kind = "real, got complex" if jnp.issubdtype(x.dtype, jnp.complexfloating) else \
             "a numeric array, got"
         raise TypeError(f"`{name}` must be {kind} dtype {x.dtype}.")
+    if not is_traced(x) and not isinstance(x, jax.Array) and jnp.issubdtype(arr.dtype,
+                                                                            jnp.floating):
+        # a finite value the computing dtype cannot hold would become inf, and be refused
+        # as if the data held one (64-bit floats off: float64 data is computed in float32)
+        target = np.dtype(dtype) if dtype is not None else np.dtype(
+            jax.dtypes.canonicalize_dtype(arr.dtype))
+        finite = np.abs(arr[np.isfinite(arr)]) if arr.size else arr
+        if finite.size and jnp.issubdtype(target, jnp.floating) and float(
+                np.max(finite)) > float(jnp.finfo(target).max):
+            raise ValueError(
+                f"`{name}` reaches a magnitude of {float(np.max(finite)):.3g}, beyond the "
+                f"largest {target} ({float(jnp.finfo(target).max):.3g}) it is computed in"
+                + (" (64-bit floats are off: jax.config.update('jax_enable_x64', True))"
+                   if target == np.float32 and not jax.config.jax_enable_x64 else "") + ".")
     # NumPy operations on host data that stays there; JAX's otherwise (same casts, same check).
     on_host = host and not is_traced(x) and not isinstance(x, jax.Array)
     xp = np if on_host else jnp

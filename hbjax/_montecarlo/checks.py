@@ -171,4 +171,7 @@ def resolve_devices(devices):
     for d in devices:
         if not isinstance(d, jax.Device):
             raise TypeError(f"{what}, got an element of type {type(d).__name__}.")
+    if len(set(devices)) != len(devices):
+        raise ValueError(f"`devices` must list each device once (one shard per device), got "
+                         f"{len(devices)} entries for {len(set(devices))} devices.")
     return devices

@@ -122,11 +122,14 @@ class Study(eqx.Module):
         )
 
     def failure_counts(self) -> dict[str, np.ndarray]:
-        """Per failure message, the number of realisations per length with that code."""
+        """Per failure message, the number of realisations per length with that code (a
+        custom estimator's codes as ``code N``: their meaning is its own)."""
+        builtin = self.estimator in ("giri", "refined")
         out = {}
         for code in np.unique(self.codes):
             if code != 0:
-                out[message_of_code(code)] = (self.codes == code).sum(axis=1)
+                label = message_of_code(code) if builtin else f"code {int(code)}"
+                out[label] = (self.codes == code).sum(axis=1)
         return out
 
     def table(self, file=None) -> str:

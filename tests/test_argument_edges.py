@@ -1,0 +1,61 @@
+"""Arguments at their edges, each refused or handled as documented (found by probing the
+public API with inputs the package was not developed on)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hbjax
+
+jax.config.update("jax_enable_x64", True)
+
+
+def test_a_progress_dict_overrides_the_bars_own_options():
+    study = hbjax.monte_carlo(hbjax.default_system(), hbjax.default_design(), noise_std=0.3,
+                              lengths=[300], realisations=2, key=jax.random.key(0),
+                              progress={"desc": "my study", "unit": "draw", "disable": True})
+    assert study.n_valid.shape == (1,)
+
+
+def test_a_repeated_device_is_refused_naming_devices():
+    with pytest.raises(ValueError, match="`devices` must list each device once"):
+        hbjax.monte_carlo(hbjax.default_system(), hbjax.default_design(), noise_std=0.3,
+                          lengths=[300], realisations=2, key=jax.random.key(0),
+                          progress=False, devices=jax.devices() * 2)
+
+
+def test_a_custom_estimators_codes_are_its_own():
+    def rejecting(design, y1, y2, y3):
+        res = hbjax.internal.estimate_giri(design, y1, y2, y3)
+
+        class Out:
+            model, result = res.model, jnp.asarray(3, jnp.int32)
+        return Out()
+
+    study = hbjax.monte_carlo(hbjax.default_system(), hbjax.default_design(), noise_std=0.3,
+                              lengths=[300], realisations=2, key=jax.random.key(0),
+                              estimator=rejecting, progress=False)
+    assert list(study.failure_counts()) == ["code 3"]
+
+
+@pytest.mark.parametrize("dtype, eps", [(jnp.float32, 1e-20), (jnp.float64, 1e-300)])
+def test_a_vanishing_smoothing_gives_the_exact_operators_gradients(dtype, eps):
+    model = jax.tree_util.tree_map(lambda x: x.astype(dtype), hbjax.default_system())
+    v = jnp.asarray(np.random.default_rng(0).uniform(-8, 8, 200), dtype)
+    loss = lambda smoothing: lambda v: jnp.sum(hbjax.simulate(model, v, smoothing=smoothing) ** 2)
+    tiny, exact = jax.grad(loss(eps))(v), jax.grad(loss(0.0))(v)
+    assert bool(jnp.all(jnp.isfinite(tiny)))
+    np.testing.assert_allclose(np.asarray(tiny), np.asarray(exact), rtol=1e-4, atol=1e-4)
+
+
+def test_a_finite_value_beyond_the_computing_dtype_is_named_not_called_inf():
+    """(With 64-bit floats off, float64 data is computed in float32; here the dtype is
+    asked for directly, since this process runs with them on.)"""
+    from hbjax._misc import as_float_array
+
+    with pytest.raises(ValueError, match=r"`v` reaches a magnitude of 5e\+38, beyond the "
+                                         r"largest float32"):
+        as_float_array(np.array([0.0, 1.0, 5e38, 2.0]), "v", dtype=jnp.float32)
+    with pytest.raises(ValueError, match="`v` contains NaN or inf"):
+        hbjax.simulate(hbjax.default_system(), np.array([0.0, np.inf]))
