@@ -151,4 +151,13 @@ def test_noise_free_outputs_unrelated_to_the_input_are_not_successes(criterion):
         assert own.result == hbjax.RESULTS.successful, (d, own.message)
     fitted = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.key(0), starts=4,
                        criterion=criterion, throw=False, progress=False)
-    assert fitted.result == hbjax.RESULTS.no_input_effect, fitted.message
+    # Refused. Its branches vanish (~1e-13); which refusal is checked first can then turn
+    # on rounding: a crossing of two vanishing branches (measured under the simulation
+    # criterion on this machine, at the code before and after the change that found it)
+    # or the input's missing effect (measured here before).
+    assert fitted.result in (hbjax.RESULTS.no_input_effect, hbjax.RESULTS.branches_cross), (
+        fitted.message)
+    bl = fitted.model.backlash
+    if fitted.result == hbjax.RESULTS.branches_cross:
+        assert float(np.max(np.abs(np.concatenate([bl.c1, bl.c2])))) * float(
+            np.max(np.abs(v))) ** 2 < 1e-9 * float(np.ptp(y))

@@ -368,7 +368,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       starts at rest at the output's centre (zero for records near zero); where the
       records' first outputs lie farther from it than 5 % of the output's range, the
       starts are solved a second time at rest there, and the result whose `sim_fit` is
-      higher is kept (a success first). Not under ``jax.jit``.
+      higher is kept (a success first; of two failures, the first). Not under ``jax.jit``.
     - `loop_tolerance`: as in :func:`hbjax.refine` (default here 1 %): the best start,
       where its loop closes inside the data, is a success only if its own covariance
       predicts a free-run fit shortfall of at most this many percent

@@ -314,10 +314,12 @@ def extrapolated_ranges(active, data_range) -> dict:
 
 
 def fits_better(res: "AbstractRefinement", than: "AbstractRefinement") -> bool:
-    """A success over anything else, then the higher free-run fit on the estimation
-    records from the initial state :func:`hbjax.estimate_initial_state` finds (the same
-    yardstick whatever start the criterion assumed)."""
+    """Whether `res` replaces `than`, which the caller solved first: a success over
+    anything else, two successes by the higher free-run fit on the estimation records from
+    the initial state :func:`hbjax.estimate_initial_state` finds (the same yardstick
+    whatever start the criterion assumed); of two failures the first is kept, so the
+    reason reported is the first solve's."""
     ok, ok_than = res.result == RESULTS.successful, than.result == RESULTS.successful
     if bool(ok) != bool(ok_than):
         return bool(ok)
-    return bool(res.sim_fit_pooled > than.sim_fit_pooled)
+    return bool(ok) and bool(res.sim_fit_pooled > than.sim_fit_pooled)
