@@ -97,6 +97,21 @@ def start_centres(recordings):
     return v_centre, jnp.mean(jnp.stack([y[0] for _, y in recordings]))
 
 
+def at_better_start(solve, recordings, centres, first):
+    """`first` (a result of ``solve(centres)``, under ``initial_state="estimate"``), or
+    ``solve`` at rest at the records' first output (:func:`start_centres`) where that lies
+    farther than :data:`ANCHOR_SHIFT` of the output's range from `centres` and fits better
+    (:func:`fits_better`). The criterion's play operator starts at rest at the output's
+    centre; a record that starts elsewhere may be solved better at rest where it starts."""
+    from .refine_result import fits_better  # (the results import the centring's maps)
+
+    anchored = start_centres(recordings)
+    if float(jnp.abs(anchored[1] - centres[1])) <= ANCHOR_SHIFT * output_range(recordings):
+        return first
+    other = solve((centres[0], anchored[1]))
+    return other if fits_better(other, first) else first
+
+
 def output_range(recordings) -> float:
     """The recorded outputs' range (over all records)."""
     return float(max(np.max(np.asarray(y)) for _, y in recordings)

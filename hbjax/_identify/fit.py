@@ -23,8 +23,7 @@ from .._core.mappings import release_compiled_programs
 from .._core.progress import check_progress, progress_bar
 from .._misc import check_bool, check_key, is_traced, positive_int
 from .._core.precision import require_x64
-from .centring import (ANCHOR_SHIFT, in_recorded_coordinates, less_centres, output_range,
-                       record_centres, start_centres)
+from .centring import at_better_start, in_recorded_coordinates, less_centres, record_centres
 from .criteria import data_scale
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
@@ -41,7 +40,7 @@ from .refine import check_floor, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
 from .free_run import judge_free_run
 from .undetermined import judge_branches, refuse_unseen
-from .refine_result import AbstractRefinement, RefinementError, fits_better
+from .refine_result import AbstractRefinement, RefinementError
 
 
 class FitResult(AbstractRefinement):
@@ -419,14 +418,8 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
         res = _solve(recs, key, centres, traced, loop_tolerance, options)
         if initial_state == "estimate" and not traced:
-            # The criterion's play operator starts at rest at the output centre; a record
-            # that starts elsewhere may be fitted better at rest at its first output.
-            anchored = start_centres(recs)
-            if float(jnp.abs(anchored[1] - centres[1])) > ANCHOR_SHIFT * output_range(recs):
-                other = _solve(recs, key, (centres[0], anchored[1]), traced, loop_tolerance,
-                               options)
-                if fits_better(other, res):
-                    res = other
+            res = at_better_start(lambda c: _solve(recs, key, c, traced, loop_tolerance,
+                                                   options), recs, centres, res)
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):

@@ -22,8 +22,8 @@ from .._core.precision import require_x64
 from .._misc import check_bool, is_real_scalar, is_traced, positive_float, positive_int
 from .._results import RESULTS, code, raise_if_failed
 from .adequacy import LEVEL
-from .centring import (ANCHOR_SHIFT, in_recorded_coordinates, less_centres, output_range,
-                       refine_centres, start_centres, to_centred)
+from .centring import (at_better_start, in_recorded_coordinates, less_centres, refine_centres,
+                       to_centred)
 from .criteria import PREDICTION, SIMULATION, lower_is_p1, sample_count
 from .quality import SIM_FIT_FLOOR
 from .recordings import (as_recordings, check_branch_degree, check_criterion, check_h_m, check_model,
@@ -31,7 +31,7 @@ from .recordings import (as_recordings, check_branch_degree, check_criterion, ch
 from .refine_band import best_of_core_start, labelled_from
 from .loop import check_loop_tolerance, judge_loop
 from .refine_kinks import escape_kinks, escape_pushed_through
-from .refine_result import RefinementError, RefineResult, finish, fits_better, summarise
+from .refine_result import RefinementError, RefineResult, finish, summarise
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation
 from .stable import check_initial_state
 from .units import in_unit, model_in_unit, output_unit, result_from_unit
@@ -498,15 +498,10 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
     res = _refine_at(model, recs, centres, options, restarts, loop_tolerance)
     if initial_state == "estimate" and not is_traced(res.result._value) and not any(
             map(is_traced, centres)) and float(jnp.sum(model.arx.b)) != 0.0:
-        # As `fit`: the criterion's play operator starts at rest at the output's centre;
-        # a record that starts elsewhere may be solved better at rest at its first output
-        # (a start refined at rest at zero on such a record lost 12 points of validation).
-        anchored = start_centres(recs)
-        if float(jnp.abs(anchored[1] - centres[1])) > ANCHOR_SHIFT * output_range(recs):
-            other = _refine_at(model, recs, (centres[0], anchored[1]), options, restarts,
-                               loop_tolerance)
-            if fits_better(other, res):
-                res = other
+        # as `fit` (a start refined at rest at zero on a record cut from a longer run lost
+        # 12 points of validation)
+        res = at_better_start(lambda c: _refine_at(model, recs, c, options, restarts,
+                                                   loop_tolerance), recs, centres, res)
     if throw and is_traced(res.result._value):
         return raise_if_failed(res)
     # On the host: an eager `!=` of two enumeration items is a device dispatch.
