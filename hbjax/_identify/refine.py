@@ -431,7 +431,11 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
       free-run fit figures start from the state :func:`hbjax.estimate_initial_state`
       estimates (output lags and play state). Records far from zero (input or output beyond twice
       their half-range from it) are solved less their centres and the result reported
-      as recorded, as :func:`hbjax.fit` does (:mod:`hbjax._identify.centring`).
+      as recorded, as :func:`hbjax.fit` does (:mod:`hbjax._identify.centring`). The
+      criterion's play operator starts at rest at the output's centre; where the records'
+      first outputs lie farther from it than 5 % of the output's range, the start is
+      refined a second time at rest there and the result whose `sim_fit` is higher is kept
+      (a success first; ``centring.at_better_start``). Not under ``jax.jit``.
     - `restarts`: ``k > 0`` (default 16, :data:`AUTO_RESTARTS`): where the result is not
       a success, or (prediction criterion) its one-step errors fail the whiteness or
       independence test of :func:`hbjax.resid` on a record (level 0.01, Bonferroni over
