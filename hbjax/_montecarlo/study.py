@@ -122,14 +122,13 @@ class Study(eqx.Module):
         )
 
     def failure_counts(self) -> dict[str, np.ndarray]:
-        """Per failure message, the number of realisations per length with that code (a
-        custom estimator's codes as ``code N``: their meaning is its own)."""
-        builtin = self.estimator in ("giri", "refined")
+        """Per failure message, the number of realisations per length with that code (read
+        in :data:`hbjax.RESULTS`'s table, a custom estimator's too; a code outside it as
+        ``code N``)."""
         out = {}
         for code in np.unique(self.codes):
             if code != 0:
-                label = message_of_code(code) if builtin else f"code {int(code)}"
-                out[label] = (self.codes == code).sum(axis=1)
+                out[message_of_code(code)] = (self.codes == code).sum(axis=1)
         return out
 
     def table(self, file=None) -> str:
