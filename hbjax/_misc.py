@@ -54,8 +54,9 @@ def as_float_array(x, name: str, ndim: int | None = None, *, dtype=None, host: b
         # as if the data held one (64-bit floats off: float64 data is computed in float32)
         target = np.dtype(dtype) if dtype is not None else np.dtype(
             jax.dtypes.canonicalize_dtype(arr.dtype))
-        finite = np.abs(arr[np.isfinite(arr)]) if arr.size else arr
-        if finite.size and jnp.issubdtype(target, jnp.floating) and float(
+        narrower = jnp.issubdtype(target, jnp.floating) and target.itemsize < arr.itemsize
+        finite = np.abs(arr[np.isfinite(arr)]) if (arr.size and narrower) else np.zeros(0)
+        if finite.size and float(
                 np.max(finite)) > float(jnp.finfo(target).max):
             raise ValueError(
                 f"`{name}` reaches a magnitude of {float(np.max(finite)):.3g}, beyond the "

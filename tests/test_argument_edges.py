@@ -51,6 +51,16 @@ def test_a_vanishing_smoothing_gives_the_exact_operators_gradients(dtype, eps):
     np.testing.assert_allclose(np.asarray(tiny), np.asarray(exact), rtol=1e-4, atol=1e-4)
 
 
+def test_the_relaxed_step_has_finite_gradients_at_tiny_magnitudes():
+    from hbjax._core.relaxed import relaxed_step
+
+    for dtype in (jnp.float32, jnp.float64):
+        args = [jnp.asarray(x, dtype) for x in (-1e-20, 3e-20, 1e-20, 1e-7)]
+        grads = jax.grad(lambda lo, hi, u, e: relaxed_step(lo, hi, u, e), argnums=(0, 1, 2, 3))(
+            *args)
+        assert all(bool(jnp.isfinite(g)) for g in grads), (dtype, grads)
+
+
 def test_a_finite_value_beyond_the_computing_dtype_is_named_not_called_inf():
     """(With 64-bit floats off, float64 data is computed in float32; here the dtype is
     asked for directly, since this process runs with them on.)"""

@@ -85,3 +85,17 @@ def test_select_structure_scores_a_record_with_an_offset_as_the_record_without()
     for k, o in enumerate(plain.orders):
         j = moved.orders.index(o)
         assert moved.loss[j] == pytest.approx(plain.loss[k], rel=0.05), o
+
+
+def test_compares_state_reproduces_its_free_run_for_a_past_at_rest_where_nb_exceeds_na():
+    """Where the past is one of a system at rest in its play state, the reported ``(y0,
+    u0)`` is that past: a run from it is the free run compare scored (the input lags held
+    at ``u0`` were once counted in ``y0`` as well: off by up to 0.72)."""
+    model = hbjax.Hammerstein(hbjax.default_system().backlash, hbjax.ARX(a=[-0.5], b=[0.6, 0.3]))
+    v = np.repeat(np.random.default_rng(5).uniform(-8, 8, 40), 10)
+    y = np.asarray(hbjax.simulate(model, v, u0=0.8, y0=[1.44]))
+    c = hbjax.compare(model, v, y)
+    state = c.initial_states[0]
+    rerun = np.asarray(hbjax.simulate(model, v, u0=state.u0, y0=state.y0))
+    np.testing.assert_allclose(rerun, c.y_hat, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(state.y0), [1.44], atol=1e-9)

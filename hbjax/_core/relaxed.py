@@ -35,10 +35,12 @@ def _smooth_max(a, b, tau, positive):
 
 
 def _resolved(tau, a, b):
-    """Where the temperature is above the rounding of the values it smooths: below it the
-    smoothing changes nothing representable, and its derivative (``a / tau^2``) would
-    overflow into NaN gradients (``smoothing=1e-20`` in float32 gave 200 of 200)."""
-    return tau > jnp.finfo(tau.dtype).eps * (jnp.abs(a) + jnp.abs(b))
+    """Where the temperature is above the rounding of the values it smooths, and its square
+    above the dtype's smallest normal number: below either the smoothing changes nothing
+    representable, or its derivative (``a / tau^2``) overflows into NaN gradients
+    (``smoothing=1e-20`` in float32 gave 200 of 200; values of 1e-20 did at any ``eps``)."""
+    info = jnp.finfo(tau.dtype)
+    return (tau > info.eps * (jnp.abs(a) + jnp.abs(b))) & (tau > jnp.sqrt(info.tiny))
 
 
 def relaxed_step(low, high, u_prev, eps):

@@ -256,7 +256,9 @@ def _general_past(model, base, v, y, play_states):
     n, na = h.shape[1], base.arx.na
     lags = jax.jacfwd(lambda y0: injection(base, y0, jnp.zeros((), dtype), n))(
         jnp.zeros(na, dtype))
-    y0 = jnp.linalg.lstsq(lags, coef)[0] if na else jnp.zeros(0, dtype)
+    # (a run from (y0, u0) also holds the input lags at u0: their part is not y0's)
+    held = injection(base, jnp.zeros(na, dtype), u0, n)
+    y0 = jnp.linalg.lstsq(lags, coef - held)[0] if na else jnp.zeros(0, dtype)
     return InitialState(y0, u0, jnp.sum((y - y_hat) ** 2)), y_hat, coef
 
 

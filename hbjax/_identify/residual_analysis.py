@@ -106,7 +106,8 @@ def resid(model: AbstractModel, v, y=None, *, lags: int = 25,
     The play operator's state before the record is unknown too, and unlike the lags it
     persists until the input moves the play onto a branch: a correct model predicted
     from the convention's ``u(-1) = 0`` on a record cut from a longer run carries a
-    start-up bias for as long (the true system was rejected on 11 of 40 such records).
+    start-up bias for as long (the true system was rejected on 8 of 30 such records,
+    ``tests/test_unknown_start.py``).
     With ``initial_state="estimate"`` (default) ``u(-1)`` is the value in the band at the
     first input whose predictions fit best (:func:`play_state_for_prediction`); ``"zero"``
     keeps the convention.

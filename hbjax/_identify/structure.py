@@ -140,9 +140,10 @@ def _loss(model, recordings, criterion, initial_state, skip):
     return total / count, count
 
 
-def _validation_fit(model, validation):
+def _validation_fit(model, validation, initial_state):
     try:
-        return float(np.mean([compare(model, v, y).fit for v, y in validation]))
+        return float(np.mean([compare(model, v, y, initial_state=initial_state).fit
+                              for v, y in validation]))
     except ValueError as exc:  # an unstable model's free run overflows
         if "overflows" not in str(exc):
             raise
@@ -160,7 +161,8 @@ def _score(recs, val, a, b, c, key, starts, criterion, initial_state, skip, fit_
     loss, n = _loss(res.model, recs, criterion, initial_state, skip) if ranked else (np.inf, 1)
     k = a + b + 2 * c - 1
     log_loss = math.log(loss) if 0 < loss < np.inf else (np.inf if loss else -np.inf)
-    vfit = _validation_fit(res.model, val) if (ranked and val is not None) else np.nan
+    vfit = (_validation_fit(res.model, val, initial_state) if (ranked and val is not None)
+            else np.nan)
     return ((a, b, c), k, loss, n * log_loss + k * math.log(n), n * log_loss + 2 * k, vfit,
             ok, ranked, res.model, res.message)
 
@@ -222,7 +224,7 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     fit_kw = {"progress": False} if "progress" in inspect.signature(fit).parameters else {}
     grid = list(itertools.product(na_list, nb_list, m_list))
     skip = max(na_list[-1], nb_list[-1]) if initial_state == "estimate" else 0
-    for k, (_, y_val) in enumerate(val or ()):
+    for k, (_, y_val) in enumerate(val if initial_state == "estimate" and val else ()):
         need = 2 * (max(na_list[-1], nb_list[-1]) + 1)  # compare's estimated start
         if np.asarray(y_val).shape[0] < need:
             raise ValueError(f"`validation` record {k} has {np.asarray(y_val).shape[0]} "
