@@ -9,7 +9,6 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from .._core import display
-from .._core.initial import estimate_initial_state
 from .._core.model import Hammerstein
 from .._core.progress import check_progress, progress_bar
 from .._core.simulate import predict, simulate
@@ -131,9 +130,8 @@ def _loss(model, recordings, criterion, initial_state, skip):
             n = max(model.arx.na, model.arx.nb)
             y_hat = predict(model, v, y, u0=play_state_for_prediction(model, model, v, y, n))
         else:
-            y_hat = hammerstein_state(model, v, y)[1]
-            if y_hat is None:
-                state = estimate_initial_state(model, v, y)
+            state, y_hat, _ = hammerstein_state(model, v, y)
+            if y_hat is None:  # (nb <= na: the state reproduces the free run)
                 y_hat = simulate(model, v, u0=state.u0, y0=state.y0)
         total += float(jnp.sum((y[skip:] - y_hat[skip:]) ** 2))
         count += int(y.shape[0]) - skip
