@@ -223,7 +223,8 @@ def fit_traceable(recordings, key, *, na: int, nb: int, m: int, starts: int = 32
         return refine_traceable(
             init, recordings, criterion=criterion, h_m=h_m, max_steps=max_steps,
             rtol=rtol, atol=atol, statistics=False, min_sim_fit=min_sim_fit,
-            initial_state=initial_state, stable=True, core_only=core_only)
+            initial_state=initial_state, stable=True, core_start=False,
+            core_only=core_only)
 
     n_open = starts - n_close
     positions = jnp.asarray(np.concatenate([np.zeros(n_open), closing_positions(n_close)]))
