@@ -159,6 +159,24 @@ def test_without_the_channel_the_structure_is_not_consistent():
         assert "structured but unexplained" in str(d.summary())
 
 
+def test_an_input_inside_the_nominal_band_is_not_consistent():
+    """The input never leaves the nominal model's band, so its free run and internal
+    signal are constant, while the recorded output follows the input: the residual is not
+    independent of the input (as hbjax.resid says), whatever the internal signal shows."""
+    rng = np.random.default_rng(0)
+    true = hbjax.Hammerstein(hbjax.Backlash(c1=[-0.05, 1.0, 0.0], c2=[0.05, 1.0, 0.0]),
+                             hbjax.ARX(a=[-0.5], b=[1.0]))
+    nominal = hbjax.Hammerstein(hbjax.Backlash(c1=[-10.0, 1.0, 0.0], c2=[10.0, 1.0, 0.0]),
+                                hbjax.ARX(a=[-0.5], b=[1.0]))
+    v = rng.uniform(-5, 5, 1000)
+    y = np.asarray(hbjax.simulate(true, v, 0.1 * rng.normal(size=1000)))
+    assert hbjax.resid(nominal, v, y).p_independence < 1e-3
+    d = hbjax.diagnose(nominal, v, y, effects=["parameter_mismatch"], progress=False)
+    ind = d.residual_tests["independence"]
+    assert ind["p_value"] < 1e-3 and ind["against"] == "input"
+    assert d.verdict != "consistent", d.summary()
+
+
 def test_clean_record_is_consistent():
     rng = np.random.default_rng(3)
     model = _system()

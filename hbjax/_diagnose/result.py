@@ -92,7 +92,8 @@ class Diagnosis:
         ind = self.residual_tests["independence"]
         lines.append(
             f"Nominal residuals: whiteness p = {_num(w['p_value'])} ({w['lags_outside']} lags "
-            f"outside the 99% band); independence from past input p = {_num(ind['p_value'])}.")
+            f"outside the 99% band); independence from the past {ind.get('against', 'input')} p = "
+            f"{_num(ind['p_value'])}.")
         lines.append(vd.sentence(self.verdict, self.unexplained, self.findings))
         if self.split.get("moved"):
             lines.append(f"Held-out part moved earlier to {self.n_holdout} samples: the "
