@@ -220,3 +220,20 @@ def test_settling_drift_is_named_as_a_settling_drift():
         if len(misses) == 2:
             break
     assert len(hits) >= 2, misses
+
+
+def test_clipped_fraction_does_not_depend_on_the_output_unit():
+    # The clip mask's tolerance is relative: an absolute floor of 1e-9 took every sample
+    # of the same record in units 1e-12 for clipped.
+    import jax
+
+    rec = hbjax.concealed_recording("output_saturation", n=600, key=jax.random.PRNGKey(0))
+    m, v, y = rec.model, np.asarray(rec.v), np.asarray(rec.y)
+    fractions = []
+    for scale in (1.0, 1e-12):
+        scaled = hbjax.Hammerstein(m.backlash, hbjax.ARX(a=m.arx.a, b=m.arx.b * scale))
+        d = hbjax.diagnose(scaled, v, y * scale, progress=False,
+                           effects=["output_saturation"])
+        assert d.best is not None and d.best.effect == "output_saturation", d.summary()
+        fractions.append(d.best.parameters["clipped_fraction"])
+    assert 0.0 < fractions[0] < 0.5 and abs(fractions[1] - fractions[0]) < 1e-12, fractions

@@ -25,8 +25,13 @@ def effect_windows(info, mask=None):
 
 
 def saturation_mask(signal, lo, hi):
-    """Samples of ``signal`` at a clip level (``None``: that side is open)."""
+    """Samples of ``signal`` at a clip level (``None``: that side is open), to a
+    tolerance relative to the levels and the signal's spread, so that the mask does not
+    depend on the signal's unit (an absolute floor took every sample of a record in
+    nanovolts for clipped)."""
     n = len(signal)
-    low = signal <= lo + 1e-9 * (abs(lo) + 1) if lo is not None else np.zeros(n, bool)
-    high = signal >= hi - 1e-9 * (abs(hi) + 1) if hi is not None else np.zeros(n, bool)
+    signal = np.asarray(signal)
+    tol = 1e-9 * max(abs(lo or 0.0), abs(hi or 0.0), float(np.ptp(signal)) if n else 0.0)
+    low = signal <= lo + tol if lo is not None else np.zeros(n, bool)
+    high = signal >= hi - tol if hi is not None else np.zeros(n, bool)
     return low | high
