@@ -71,3 +71,18 @@ def test_a_finite_value_beyond_the_computing_dtype_is_named_not_called_inf():
         as_float_array(np.array([0.0, 1.0, 5e38, 2.0]), "v", dtype=jnp.float32)
     with pytest.raises(ValueError, match="`v` contains NaN or inf"):
         hbjax.simulate(hbjax.default_system(), np.array([0.0, np.inf]))
+
+
+def test_a_record_whose_output_never_moves_has_no_fit_percent():
+    # A dead sensor: its free-run fit percent is undefined (as fit_percent says), not a
+    # number of -1e152 % from dividing by no spread.
+    rng = np.random.default_rng(0)
+    model = hbjax.default_system()
+    v = np.repeat(rng.uniform(-8, 8, 60), 10)
+    good = (v, np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=600))))
+    res = hbjax.fit([good, (v, np.zeros(600))], na=2, nb=2, m=3, key=jax.random.key(0),
+                    starts=2, throw=False, progress=False)
+    fits = np.asarray(res.sim_fit)
+    assert np.isfinite(fits[0]) and np.isnan(fits[1])
+    assert np.isfinite(float(res.sim_fit_pooled))
+    assert "undefined (output constant)" in str(res.summary())

@@ -197,6 +197,8 @@ def test_bad_input(system):
         hbjax.diagnose(system, v, y, criterion="likelihood")
     with pytest.raises(ValueError, match="unknown `effect`"):
         hbjax.concealed_recording("gremlins")
+    with pytest.raises(ValueError, match="`y` is constant"):
+        hbjax.diagnose(system, v, np.zeros_like(y))  # a disconnected sensor
 
 
 # --- the concealed-effect study -------------------------------------------------------

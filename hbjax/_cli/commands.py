@@ -367,7 +367,9 @@ def cmd_identify_fit(args) -> int:
     print(f"  standard errors (a, b, c1, c2) = {_significant(std, 3)}")
     print(f"  noise std = {float(result.noise_std):.4g}; {args.starts} starts, "
           f"{float(result.hit_rate):.0%} reached the best cost; {result.message}")
-    fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(result.sim_fit)))
+    from .._core.display import record_fit_text
+
+    fits = ", ".join(record_fit_text(f) for f in np.atleast_1d(np.asarray(result.sim_fit)))
     start = "estimated initial state" if args.initial_state == "estimate" else "zero start"
     print(f"  free-run fit on the recording(s) ({start}): {fits}")
     print(f"wrote {args.out}")

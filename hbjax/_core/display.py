@@ -162,6 +162,8 @@ def result_figures(result) -> dict:
         if value is None or (c is not None and c.dtype.kind == "f" and c.size
                              and np.all(np.isnan(c))):
             continue  # absent, or not computed (NaN: e.g. residual tests of a good fit)
+        if path == "sim_fit" and c is not None and np.any(np.isnan(c)):
+            value = ", ".join(record_fit_text(f) for f in np.atleast_1d(c))
         out[label] = value
     if getattr(result, "initial_state", None) is not None:
         out["initial state"] = ("estimated" if result.initial_state == "estimate"
@@ -170,6 +172,12 @@ def result_figures(result) -> dict:
     if costs is not None:
         out["starts converged"] = f"{int(np.isfinite(costs).sum())} of {costs.shape[-1]}"
     return out
+
+
+def record_fit_text(fit) -> str:
+    """One record's free-run fit as text: ``"97.3 %"``, or why it has none (NaN: a record
+    whose output never moves, where the percentage is undefined)."""
+    return "undefined (output constant)" if np.isnan(fit) else f"{float(fit):.1f} %"
 
 
 def estimation_summary(result, title: str, *, covariance=None, extra=None) -> Summary:

@@ -93,6 +93,11 @@ def _check_inputs(model, v, y, holdout, effects, key):
             "`v` is constant: a constant input holds the backlash at one value, so the "
             "recording cannot show the input's effect and a mismatch in it cannot be told "
             "from noise (check that `v` is the input channel).")
+    if float(jnp.max(y) - jnp.min(y)) == 0.0:
+        raise ValueError(
+            f"`y` is constant (every sample {float(y[0]):g}): a recorded output that never "
+            "moves shows no dynamics to compare with the nominal model (check that `y` is the "
+            "output channel and that the sensor was connected).")
     effects = resolve(effects)
     check_key(key, optional=True)
     return np.asarray(v), np.asarray(y), n_fit, effects

@@ -112,7 +112,8 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
     pooled over all records (each centred on its own mean), and the ranges of the input on
     which each branch decides the output.
 
-    Returns ``(fits, pooled, active, sources)``: ``fits`` shape ``(records,)``; ``active``
+    Returns ``(fits, pooled, active, sources)``: ``fits`` shape ``(records,)``, NaN for a
+    record whose output is constant (the percentage is undefined there); ``active``
     shape ``(2, 2)``, ``[[lo, hi] of P1, [lo, hi] of P2]`` over the inputs at the source
     instants of the output (NaN for a branch that never decides it); ``sources`` the play
     operator's output of each record (for :mod:`hbjax._identify.adequacy`). An unstable
@@ -138,7 +139,9 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
         else:
             mean = jnp.sum(where_valid(mask, y, 0.0)) / jnp.sum(mask)
             d2 = jnp.sum(where_valid(mask, (y - mean) ** 2, 0.0))
-        fits.append(100.0 * (1.0 - jnp.sqrt(e2) / jnp.sqrt(jnp.maximum(d2, 1e-300))))
+        # (undefined, NaN, for a record whose output never moves: fit_percent refuses it)
+        fits.append(jnp.where(d2 > 0, 100.0 * (1.0 - jnp.sqrt(e2) / jnp.sqrt(
+            jnp.maximum(d2, 1e-300))), jnp.nan))
         num, den = num + e2, den + d2
         # A branch decides the output at the inputs of the instants the play operator is
         # clamped to it (every other sample repeats an earlier such value).

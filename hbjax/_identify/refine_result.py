@@ -134,8 +134,9 @@ class RefineResult(AbstractRefinement):
     - `sim_fit`: free-run simulation fit (%) on each estimation record,
       ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)``, simulated from rest as
       :func:`hbjax.simulate` (from the estimated initial state with
-      ``initial_state="estimate"``); `sim_fit_pooled` over all records (``RESULTS.poor_fit``
-      below :data:`hbjax._identify.quality.SIM_FIT_FLOOR`).
+      ``initial_state="estimate"``; NaN, shown as "undefined (output constant)", for a
+      record whose output never moves); `sim_fit_pooled` over all records
+      (``RESULTS.poor_fit`` below :data:`hbjax._identify.quality.SIM_FIT_FLOOR`).
     - `stable`: whether ``A`` has all its poles inside the unit circle (A3;
       ``RESULTS.unstable`` otherwise).
     - `identified`: per parameter (flatten order), whether the data identify it;
@@ -277,7 +278,7 @@ def describe(res) -> str:
                  f"1/A dominates the output: residuals white, p = {p[0]:.2g}, independent of "
                  f"the input, p = {p[1]:.2g}, input path significant, p = {p[2]:.2g})")
     if res.result == RESULTS.poor_fit or res.result == RESULTS.closing_loop:
-        fits = ", ".join(f"{float(f):.1f} %" for f in np.atleast_1d(np.asarray(res.sim_fit)))
+        fits = ", ".join(display.record_fit_text(f) for f in np.atleast_1d(np.asarray(res.sim_fit)))
         text += (f" (free-run fit {float(res.sim_fit_pooled):.1f} % pooled, per record: "
                  f"{fits}; floor {float(res.min_sim_fit):g} %)")
     elif res.result == RESULTS.loop_unresolved:
