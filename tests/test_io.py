@@ -179,6 +179,29 @@ def test_unused_columns_may_hold_anything(tmp_path):
         hbjax.load_recording(p, time="Ts")
 
 
+def test_other_numeric_columns_of_any_csv_are_channels(tmp_path):
+    # Offered to diagnose (docs/io_and_cli.md); a column of notes or blanks is left out.
+    p = write(tmp_path, "c.csv", "drive,force,aux,note,aux\n1,2,3,a,5\n4,5,6,b,7\n")
+    rec = hbjax.load_recording(p)
+    assert list(rec.channels) == ["aux", "aux (column 4)"]
+    np.testing.assert_array_equal(rec.channels["aux"], [3.0, 6.0])
+    q = write(tmp_path, "n.csv", "1 2 9\n3 4 8\n")
+    np.testing.assert_array_equal(hbjax.load_recording(q).channels["column 2"], [9.0, 8.0])
+    assert dict(hbjax.load_recording(q, output=2).channels) .keys() == {"column 1"}
+
+
+def test_a_brfd_files_other_columns_are_its_channels():
+    import importlib.resources
+
+    name = "1Hz30lbtension1amplitude"
+    path = importlib.resources.files("hbjax") / "data" / "brfd" / f"{name}.json"
+    loaded, bundled = hbjax.load_recording(str(path)), hbjax.datasets.brfd(name)
+    assert list(loaded.channels) == list(bundled.channels) == [
+        "velocity", "actuator force 1", "actuator force 2"]
+    for k in bundled.channels:
+        np.testing.assert_array_equal(loaded.channels[k], bundled.channels[k])
+
+
 def test_missing_file_and_binary_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         hbjax.load_recording(tmp_path / "nope.csv")

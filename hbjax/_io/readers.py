@@ -182,27 +182,16 @@ def read_brfd_json(p, input, output, time):
     ]
     distinct_columns(p, {role: None if j is None else f"column {BRFD_COLUMNS[j]!r}"
                          for j, role in zip(idx, ("input", "output", "time"))})
-    cols = []
-    for j, role in zip(idx, ("input", "output", "time")):
-        if j is None:
-            cols.append(None)
-            continue
-        col = np.empty(len(rows))
-        for r, row in enumerate(rows):
-            cell = row[j]
-            if isinstance(cell, bool) or not isinstance(cell, (int, float)):
-                raise ValueError(
-                    f"{p}: non-numeric value {_short(cell)} at data row {r}, column {j}."
-                )
+    cols = [None if j is None else _brfd_column(rows, j, p) for j in idx]
+    # The other named columns (velocity, actuator forces) are the record's channels, as
+    # hbjax.datasets.brfd gives them; one that does not hold numbers is left out.
+    channels = {}
+    for j in range(1, min(width, len(BRFD_COLUMNS))):
+        if j not in idx:
             try:
-                col[r] = cell
-            except OverflowError:
-                raise ValueError(
-                    f"{p}: number too large for a float64 at data row {r}, column {j}."
-                ) from None
-            if not np.isfinite(col[r]):
-                raise ValueError(f"{p}: NaN or inf at data row {r}, column {j}.")
-        cols.append(col)
+                channels[BRFD_COLUMNS[j]] = _brfd_column(rows, j, p)
+            except ValueError:
+                pass
     file_dt = doc.get("dt")
     if file_dt is not None and (isinstance(file_dt, bool) or not isinstance(file_dt, (int, float))):
         raise ValueError(f"{p}: `dt` must be a number, got {_short(file_dt)}.")
@@ -211,7 +200,27 @@ def read_brfd_json(p, input, output, time):
             file_dt = float(file_dt)
         except OverflowError:
             raise ValueError(f"{p}: `dt` is too large for a float64.") from None
-    return cols, file_dt
+    return cols, file_dt, channels
+
+
+def _brfd_column(rows, j: int, p) -> np.ndarray:
+    """Column ``j`` of a BRFD file's rows as float64, every cell checked."""
+    col = np.empty(len(rows))
+    for r, row in enumerate(rows):
+        cell = row[j]
+        if isinstance(cell, bool) or not isinstance(cell, (int, float)):
+            raise ValueError(
+                f"{p}: non-numeric value {_short(cell)} at data row {r}, column {j}."
+            )
+        try:
+            col[r] = cell
+        except OverflowError:
+            raise ValueError(
+                f"{p}: number too large for a float64 at data row {r}, column {j}."
+            ) from None
+        if not np.isfinite(col[r]):
+            raise ValueError(f"{p}: NaN or inf at data row {r}, column {j}.")
+    return col
 
 
 def _short(value) -> str:

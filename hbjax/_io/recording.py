@@ -162,6 +162,10 @@ def load_recording(
       :func:`save_recording` writes), else columns 0 and 1; NPZ arrays ``v`` and ``y`` if
       present, else the first two arrays; BRFD JSON columns ``displacement`` (1) and
       ``friction force`` (2).
+    - The file's other columns become the recording's `channels` (offered to
+      :func:`hbjax.diagnose`): those :func:`save_recording` wrote; in any other CSV file,
+      every other column that holds a finite number in every row, named by its header
+      (``column j`` without one); a BRFD file's velocity and actuator forces.
     - `time`: optional column of sample times; ``dt`` is their (uniform) spacing. Times
       written as ``k * dt`` give back ``dt`` exactly.
     - `dt`: the sampling period, when the file does not give it. A `dt` that disagrees by
@@ -189,7 +193,7 @@ def load_recording(
     if suffix == ".npz":
         columns, file_dt, t0, channels = read_npz(p, input, output, time)
     elif suffix == ".json":
-        columns, file_dt = read_brfd_json(p, input, output, time)
+        columns, file_dt, channels = read_brfd_json(p, input, output, time)
     else:
         table = read_csv_table(p)
         v_col, y_col = table.default_columns()
@@ -197,11 +201,11 @@ def load_recording(
                 time]
         columns = table.columns(keys, ("input", "output", "time"))
         file_dt = table.dt
+        used = {table.index(k, "column") for k in keys if k is not None}
+        used |= {j for j in [table.named("t")] if j is not None}
+        extra = [j for j in range(table.n_columns) if j not in used]
         if table.meta is not None:  # written by save_recording: its t0 and channels too
             t0 = table.meta.get("t0", 0.0)
-            used = {table.index(k, "column") for k in keys if k is not None}
-            used |= {j for j in [table.named("t")] if j is not None}
-            extra = [j for j in range(table.n_columns) if j not in used]
             seen = {}
             for j in extra:
                 name = table.header[j].strip()
@@ -211,6 +215,8 @@ def load_recording(
                         f"({seen[name]} and {j}, 0-based); rename one of them.")
                 seen[name] = j
             channels = {table.header[j].strip(): table.column(j) for j in extra}
+        else:
+            channels = _numeric_channels(table, extra)
     v, y, t = columns
     rec_dt = _resolve_dt(p, t, file_dt, dt, time)
     if t is not None:
@@ -220,6 +226,24 @@ def load_recording(
                          t0=t0)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{p}: {exc}") from None
+
+
+def _numeric_channels(table, extra) -> dict:
+    """The unused columns of a CSV file not written by :func:`save_recording` that hold a
+    finite number in every row, as channels named by the header (``column j`` where it
+    has no header or no name; a repeated name gets its column's index). Other unused
+    columns (notes, blank cells) are left out, as before."""
+    channels = {}
+    for j in extra:
+        try:
+            values = table.column(j)
+        except ValueError:
+            continue
+        name = table.header[j].strip() if table.header is not None else ""
+        if not name or name in channels:
+            name = f"{name} (column {j})".strip() if name else f"column {j}"
+        channels[name] = values
+    return channels
 
 
 def _resolve_dt(p, t, file_dt, dt, time):
