@@ -86,3 +86,35 @@ def test_a_record_whose_output_never_moves_has_no_fit_percent():
     assert np.isfinite(fits[0]) and np.isnan(fits[1])
     assert np.isfinite(float(res.sim_fit_pooled))
     assert "undefined (output constant)" in str(res.summary())
+
+
+def test_a_batched_model_is_refused_naming_it():
+    m = hbjax.default_system()
+    batched = jax.vmap(lambda s: hbjax.Hammerstein(
+        hbjax.Backlash(m.backlash.c1 * s, m.backlash.c2), m.arx))(jnp.ones(2))
+    v = jnp.linspace(-5.0, 5.0, 10)
+    for call in (lambda: hbjax.simulate(batched, v), lambda: hbjax.predict(batched, v, v)):
+        with pytest.raises(ValueError, match="`model` is batched"):
+            call()
+    with pytest.raises(ValueError, match="`backlash` is batched"):
+        hbjax.play(batched.backlash, v)
+    # one at a time under vmap, as the message says
+    out = jax.vmap(lambda one: hbjax.simulate(one, v))(batched)
+    assert out.shape == (2, 10)
+
+
+def test_a_custom_estimator_of_other_orders_is_refused_naming_them():
+    import equinox as eqx
+
+    class Outcome(eqx.Module):
+        model: hbjax.Hammerstein
+        result: jax.Array
+
+    def estimator(design, y1, y2, y3):
+        return Outcome(hbjax.Hammerstein(hbjax.Backlash(jnp.zeros(2), jnp.ones(2)),
+                                         hbjax.ARX(jnp.zeros(1), jnp.ones(1))), jnp.int32(0))
+
+    with pytest.raises(ValueError, match=r"orders \(na, nb, m\) = \(2, 2, 3\), got \(1, 1, 2\)"):
+        hbjax.monte_carlo(hbjax.default_system(), hbjax.default_design(), noise_std=0.1,
+                          lengths=[200], realisations=2, key=jax.random.key(0),
+                          estimator=estimator, progress=False)

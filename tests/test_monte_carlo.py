@@ -362,6 +362,34 @@ def test_refined_estimator_does_not_fail_where_the_closed_form_succeeds(system, 
     assert refined.n_failed[0] == 0, refined.failure_counts()
 
 
+def test_the_means_interval_covers_at_its_level_with_few_realisations():
+    # Over 400 studies of 3 unbiased realisations the "95% interval" must cover the true
+    # value about 95 % of the time (1.96 standard errors covered 84 %).
+    import re
+
+    system, design = hbjax.default_system(), hbjax.default_design()
+    names = hbjax.param_names(system)
+    true = np.asarray(hbjax.flatten_params(hbjax.normalise(system, design.h_m)))
+    fixed = dict(compile_seconds=np.zeros(1), run_seconds=np.zeros(1), realisations=3,
+                 noise_std=0.1, estimator="x", noise="equation", n_devices=1, chunk_size=2)
+    rng = np.random.default_rng(0)
+    hits, trials = 0, 400
+    for _ in range(trials):
+        est = true + 0.01 * rng.normal(size=(1, 3, true.size))
+        study = hbjax.Study.from_estimates([1000], names, true, est, np.zeros((1, 3), int),
+                                           keep_estimates=True, **fixed)
+        line = next(ln for ln in str(study.summary()).splitlines() if ln.startswith("a1 "))
+        lo, hi = map(float, re.search(r"\[([-\d.e+]+), ([-\d.e+]+)\]", line).groups())
+        hits += lo <= true[0] <= hi
+    # binomial(400, 0.95): sd 1.1 %; 0.84 lies 10 sd below
+    assert 0.91 <= hits / trials <= 0.99, hits / trials
+
+
+def test_an_rbg_key_is_refused_naming_key(system, design):
+    with pytest.raises(ValueError, match="`key` must be a threefry2x32 key"):
+        _study(system, design, key=jax.random.key(3, impl="rbg"))
+
+
 def test_one_realisation_gives_no_slope_interval():
     """One draw per length measures no Monte Carlo uncertainty: the slope is the plain fit
     and its interval is NaN (it was a zero-width interval)."""

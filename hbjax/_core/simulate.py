@@ -23,6 +23,14 @@ def _check_model(model, cls=AbstractModel, name="model"):
         raise TypeError(
             f"`{name}` must be an hbjax.{cls.__name__}, got {type(model).__name__}."
         )
+    blocks = jax.tree_util.tree_leaves(model, is_leaf=lambda x: isinstance(x, (Backlash, ARX)))
+    for block in blocks:
+        if isinstance(block, (Backlash, ARX)) and any(
+                jnp.ndim(leaf) != 1 for leaf in jax.tree_util.tree_leaves(block)):
+            shapes = [tuple(jnp.shape(leaf)) for leaf in jax.tree_util.tree_leaves(block)]
+            raise ValueError(
+                f"`{name}` is batched (coefficient shapes {shapes}, expected 1-D): pass one "
+                f"{name} at a time, e.g. under jax.vmap over the batch.")
 
 
 def _guard_params(carrier, model):

@@ -86,7 +86,7 @@ def chunk_fn(design, length, noise, draw, estimator, impl):
             return simulate(v, jnp.zeros_like(v), 0.0) + e
         return simulate(v, e, 0.0)
 
-    def estimate(y):
+    def estimate(model, y):
         res = estimator(design, y[0], y[1], y[2])
         if not (hasattr(res, "model") and hasattr(res, "result")):
             raise TypeError(
@@ -98,6 +98,12 @@ def chunk_fn(design, length, noise, draw, estimator, impl):
                 "`estimator` must return an object whose `.model` is an hbjax.Hammerstein, "
                 f"got {type(res.model).__name__}."
             )
+        got = (res.model.arx.na, res.model.arx.nb, res.model.backlash.m)
+        want = (model.arx.na, model.arx.nb, model.backlash.m)
+        if got != want:
+            raise ValueError(
+                "`estimator` must return a model of the studied system's orders (na, nb, m) "
+                f"= {want}, got {got}.")
         theta = flatten_params(res.model)
         code = result_code(res.result)
         code = jnp.where((code == 0) & ~jnp.all(jnp.isfinite(theta)), NONFINITE, code)
@@ -113,8 +119,8 @@ def chunk_fn(design, length, noise, draw, estimator, impl):
             # An iterative solve per realisation: sequential `lax.map` keeps each fit's
             # (T, p) Jacobian in cache and stops each at its own convergence, several times
             # faster on CPU than a vmapped solve that runs every lane for the slowest one.
-            return jax.lax.map(estimate, y)
-        return jax.vmap(estimate)(y)
+            return jax.lax.map(lambda y_: estimate(model, y_), y)
+        return jax.vmap(lambda y_: estimate(model, y_))(y)
 
     return chunk
 

@@ -5,6 +5,7 @@ import equinox as eqx
 import numpy as np
 
 from .._core import display
+from .._misc import t_quantile
 from .._results import message_of_code
 
 
@@ -174,15 +175,18 @@ class Study(eqx.Module):
 
     def summary(self) -> display.Summary:
         """Per parameter: the true value, the mean estimate with its Monte Carlo standard
-        error and 95% interval, bias, std and RMSE at the longest record, and the log-log
+        error and 95% interval (Student's t over the valid realisations), bias, std and RMSE at the longest record, and the log-log
         RMSE slope with its 95% interval; then valid realisations and failures."""
         i = int(np.argmax(self.lengths))
         n = max(int(self.n_valid[i]), 1)
         num = display.format_number
+        # Student's t with n - 1 degrees of freedom: 1.96 would cover a mean over 3 valid
+        # realisations in 81 % of studies, not 95 %.
+        factor = t_quantile(0.975, n - 1)
         rows = []
         for p, name in enumerate(self.names):
             se = self.std[i, p] / np.sqrt(n)
-            lo, hi = self.mean[i, p] - display.Z95 * se, self.mean[i, p] + display.Z95 * se
+            lo, hi = self.mean[i, p] - factor * se, self.mean[i, p] + factor * se
             rows.append([name, num(self.true[p]), num(self.mean[i, p]), num(se),
                          f"[{num(lo)}, {num(hi)}]", num(self.bias[i, p]), num(self.std[i, p]),
                          num(self.rmse[i, p]), f"{self.slope[p]:+.3f}",
