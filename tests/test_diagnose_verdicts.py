@@ -224,6 +224,10 @@ def test_bad_channels():
         hbjax.diagnose(model, v, y, channels=[1, 2], progress=False)
     with pytest.raises(ValueError, match="`split`"):
         hbjax.diagnose(model, v, y, split="random", progress=False)
+    # refused up front like y, not by an internal class after the candidates' fits
+    with pytest.raises(ValueError, match=r"`channels\['w'\]` reaches a magnitude"):
+        hbjax.diagnose(model, v, y, channels={"w": 1e160 * np.sin(np.arange(len(v)))},
+                       progress=False)
 
 
 def _brfd(name, n=896, k=8):

@@ -43,7 +43,7 @@ from .decide import over_constant
 from .effect_base import EffectConstraint
 from .._core.arx import all_pole
 from .._core.model import AbstractModel, Hammerstein
-from .._misc import as_float_array, lag_sum, lagged
+from .._misc import as_float_array, check_values, lag_sum, lagged
 
 #: FIR lags 0..LAGS of a channel entering as a second input
 LAGS = 3
@@ -69,6 +69,9 @@ def check_channels(channels, n: int) -> dict:
                              f"{n}, got shape {arr.shape}.")
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"channel {name!r} contains NaN or infinite values.")
+        # (the bound the record's own signals get: squares and products of larger values
+        # overflow in the extension's fit)
+        check_values(arr, f"channels[{name!r}]")
         out[str(name)] = arr
     return out
 
