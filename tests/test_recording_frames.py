@@ -128,6 +128,14 @@ def test_plot_axes_in_seconds_when_dt_known():
     assert ax.get_xlabel() == "time (s)" and ax.get_lines()[0].get_xdata()[-1] == 0.5 * 399
 
 
+def test_the_diagnosis_figure_keeps_the_recordings_times():
+    c = hbjax.concealed_recording("output_saturation", n=1200, key=jax.random.key(0))
+    _, late = hbjax.Recording(c.v, c.y, dt=0.01).split(0.5)  # starts at t0 = 6 s
+    d = hbjax.diagnose(c.model, late, effects=["output_saturation"], progress=False)
+    ax = np.ravel(hbjax.plot.plot_diagnosis(d))[0]
+    np.testing.assert_allclose(ax.get_lines()[0].get_xdata()[[0, -1]], late.t[[0, -1]])
+
+
 def test_estimators_take_recordings_and_dataframes(system):
     v = np.asarray(jax.random.uniform(jax.random.key(3), (800,), minval=-2.0, maxval=2.0))
     y = np.asarray(hbjax.simulate(system, v, 0.01 * jax.random.normal(jax.random.key(4), (800,))))

@@ -33,6 +33,7 @@ from .._core.model import Hammerstein
 from .._core.precision import require_x64
 from .._core.progress import check_progress, progress_bar
 from .._identify.recordings import as_input_output
+from .._io.recording import Recording
 from .._misc import (
     as_float_array,
     check_key,
@@ -153,10 +154,11 @@ def diagnose(model: Hammerstein, v, y=None, *, holdout: float = 0.3, effects=Non
     check_progress(progress)
     if channels is None:
         channels = getattr(v, "channels", None) or None
+    t0 = float(getattr(v, "t0", 0.0) or 0.0) if isinstance(v, Recording) else 0.0
     v, y, dt = as_input_output(v, y)
     with progress_bar(progress, total=4, desc="diagnose", unit="stage", live=True) as bar:
         found = _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels, split)
-    return dataclasses.replace(found, dt=dt)
+    return dataclasses.replace(found, dt=dt, t0=t0)
 
 
 def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,

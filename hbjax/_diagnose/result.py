@@ -68,6 +68,8 @@ class Diagnosis:
     v: np.ndarray = dataclasses.field(repr=False, default=None)
     y: np.ndarray = dataclasses.field(repr=False, default=None)
     dt: float | None = dataclasses.field(repr=False, default=None)
+    # the recording's first sample time (a Recording's t0), for the figure's time axis
+    t0: float = dataclasses.field(repr=False, default=0.0)
     verdict: str = "consistent"
     unexplained: dict = dataclasses.field(default_factory=dict)
     failed: dict = dataclasses.field(default_factory=dict)

@@ -56,15 +56,16 @@ def plot_diagnosis(d, *, finding=None, axes=None):
     y_nom = np.asarray(simulate(d.nominal, v))
     u = np.asarray(play(d.nominal.backlash, v))
     res = y - y_nom
-    dt = getattr(d, "dt", None)
-    t, t_label = time_axis(len(y), dt)
+    dt, t0 = getattr(d, "dt", None), getattr(d, "t0", 0.0)
+    t, t_label = time_axis(len(y), dt, t0)
     step = 1.0 if dt is None else dt
     ax = axes[0]
     ax.plot(t, res, lw=0.7, color="C0", label="nominal simulation residual")
-    ax.axvspan(d.n_fit * step, len(y) * step, color="0.85", zorder=0, label="held out")
+    ax.axvspan(t0 + d.n_fit * step, t0 + len(y) * step, color="0.85", zorder=0,
+               label="held out")
     if f is not None:
         for i, (a, b) in enumerate(f.where.get("windows", [])):
-            ax.axvspan(a * step, b * step, color="C3", alpha=0.2,
+            ax.axvspan(t0 + a * step, t0 + b * step, color="C3", alpha=0.2,
                        label="located" if i == 0 else None)
     ax.set_xlabel(t_label)
     ax.set_ylabel("y - y_sim")
