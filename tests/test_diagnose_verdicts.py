@@ -177,6 +177,18 @@ def test_an_input_inside_the_nominal_band_is_not_consistent():
     assert d.verdict != "consistent", d.summary()
 
 
+def test_the_output_levels_range_is_said_to_be_the_nominal_free_runs():
+    # The output level is binned on the nominal free run, whose range may lie outside the
+    # recorded output's: the sentence must say whose range it gives.
+    c = hbjax.concealed_recording("output_saturation", n=600, key=jax.random.key(0))
+    y = np.random.default_rng(3).normal(size=600)  # unrelated to the model
+    d = hbjax.diagnose(c.model, c.v, y, effects=["output_saturation"], progress=False)
+    line = next(ln for ln in str(d.summary()).splitlines() if ln.startswith("Verdict"))
+    assert d.verdict == "unexplained" and "whiteness and independence tests reject" in line
+    assert d.unexplained["regime"]["variable"] == "output level"
+    assert "largest where the nominal free run is in" in line, line
+
+
 def test_clean_record_is_consistent():
     rng = np.random.default_rng(3)
     model = _system()

@@ -84,11 +84,17 @@ def sentence(verdict_: str, detail: dict, findings: list) -> str:
     where = ""
     if reg is not None:
         lo, hi = (reg.get("worst_range") or [None, None])[:2]
-        rng = f", largest in {lo:.4g}..{hi:.4g}" if lo is not None and hi is not None else ""
+        # The output level is binned on the nominal free run (binning on the recorded
+        # output would sort the residual by itself), so its range is the free run's.
+        on = (" where the nominal free run is in" if reg.get("test") == "regime_output"
+              else " in")
+        rng = f", largest{on} {lo:.4g}..{hi:.4g}" if lo is not None and hi is not None else ""
         where = (f" The {reg['variable']} explains most of the nominal residual "
                  f"({100 * reg['explained']:.0f}% of its variance by bins{rng}).")
-    tests = " and ".join(detail.get("rejected") or []) or "a residual test"
-    return (f"Verdict: structured but unexplained. The {tests} test rejects (p < {REJECT_P:g}) "
+    rejected = detail.get("rejected") or []
+    tests = (" and ".join(rejected) + (" tests reject" if len(rejected) > 1 else " test rejects")
+             if rejected else "residual tests reject")
+    return (f"Verdict: structured but unexplained. The {tests} (p < {REJECT_P:g}) "
             f"but no mechanism of the library improves the held-out free-run simulation "
             f"significantly.{where}")
 
