@@ -113,6 +113,10 @@ def test_decimate_filters_aliases_and_matches_scipy_fir():
     out = hbjax.Recording(low + high, np.ones(n)).decimate(k)
     np.testing.assert_allclose(out.v[50:-50], low[::k][50:-50], atol=0.01)
     np.testing.assert_allclose(out.y, 1.0, atol=1e-12)  # constants survive up to the ends
+    for length in (10, 23, 40, 60):  # shorter than the filter: reflected again and again
+        ramp = 0.5 + 0.25 * np.arange(length)
+        short = hbjax.Recording(ramp, ramp).decimate(5)
+        np.testing.assert_allclose(short.v, ramp[::5], atol=1e-12)
     with pytest.raises(ValueError, match="positive integer"):
         rec.decimate(0)
 

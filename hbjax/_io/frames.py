@@ -217,13 +217,17 @@ def zero_phase_filter(x: np.ndarray, h: np.ndarray) -> np.ndarray:
     reflection about the end samples (as ``filtfilt`` pads), so a constant or a ramp passes
     unchanged up to the edges instead of being pulled towards zero."""
     half = (h.shape[0] - 1) // 2
-    pad = min(half, x.shape[0] - 1)
-    left = 2 * x[0] - x[pad:0:-1]
-    right = 2 * x[-1] - x[-2:-pad - 2:-1]
-    xe = np.concatenate([left, x, right])
-    full = np.convolve(xe, h, mode="same") if xe.shape[0] >= h.shape[0] else (
-        np.convolve(xe, h, mode="full")[half:half + xe.shape[0]])
-    return full[pad:pad + x.shape[0]]
+    if x.shape[0] < 2:
+        return np.convolve(x, h, mode="full")[half:half + x.shape[0]]
+    # A record shorter than the filter's half-length is reflected again and again (the
+    # odd reflection of a ramp about its end is the ramp's continuation), so the filter
+    # never reaches the zeros beyond a single reflection's end.
+    xe, pad = x, 0
+    while pad < half:
+        step = min(half - pad, xe.shape[0] - 1)
+        xe = np.concatenate([2 * xe[0] - xe[step:0:-1], xe, 2 * xe[-1] - xe[-2:-step - 2:-1]])
+        pad += step
+    return np.convolve(xe, h, mode="same")[pad:pad + x.shape[0]]
 
 
 def decimate(rec, k: int):
