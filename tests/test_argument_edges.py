@@ -118,3 +118,9 @@ def test_a_custom_estimator_of_other_orders_is_refused_naming_them():
         hbjax.monte_carlo(hbjax.default_system(), hbjax.default_design(), noise_std=0.1,
                           lengths=[200], realisations=2, key=jax.random.key(0),
                           estimator=estimator, progress=False)
+
+
+def test_a_concealed_recording_shows_its_arrays_by_shape_and_range():
+    rec = hbjax.concealed_recording("output_saturation", n=1000, key=jax.random.key(0))
+    text = repr(rec)
+    assert "f64[1000]" in text and "effect='output_saturation'" in text and len(text) < 2000

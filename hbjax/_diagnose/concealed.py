@@ -16,6 +16,7 @@ import numpy as np
 
 from . import effects as fx
 from .kernel_effect import signals
+from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
 from .._misc import check_key, positive_int
@@ -46,6 +47,11 @@ class ConcealedRecording:
     true_model: object
     effect: str | None
     truth: dict
+
+    def __repr__(self) -> str:
+        # as the package's models and results show themselves: large arrays by shape and
+        # range, not every sample
+        return display.pformat(self)
 
 
 def _input(kind, n, rng, amp=8.0):
