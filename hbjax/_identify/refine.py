@@ -31,7 +31,8 @@ from .recordings import (as_recordings, check_branch_degree, check_criterion, ch
 from .refine_band import best_of_core_start, labelled_from
 from .loop import check_loop_tolerance, judge_loop
 from .refine_kinks import escape_kinks, escape_pushed_through
-from .refine_result import RefinementError, RefineResult, finish, summarise
+from .refine_result import (RefinementError, RefineResult, at_estimated_start, finish,
+                            summarise)
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation
 from .stable import check_initial_state
 from .units import in_unit, model_in_unit, output_unit, result_from_unit
@@ -321,6 +322,7 @@ def _refine_at(model, recs, centres, options, restarts, loop_tolerance):
     `centres`, reported on the records as recorded."""
     criterion, initial_state = options["criterion"], options["initial_state"]
     h_m, min_sim_fit = options["h_m"], options["min_sim_fit"]
+    recorded = recs
     moved = any(is_traced(c) or float(c) != 0.0 for c in centres)
     if not any(map(is_traced, centres)):
         centres = tuple(np.float64(c) for c in centres)  # (NumPy records stay on the host)
@@ -345,6 +347,8 @@ def _refine_at(model, recs, centres, options, restarts, loop_tolerance):
     res = judge_loop(res, recs, loop_tolerance)
     if moved:
         res = in_recorded_coordinates(res, *centres)
+    if initial_state == "estimate" and not is_traced(res.result._value):
+        res = at_estimated_start(res, recorded)
     return res
 
 
