@@ -124,3 +124,11 @@ def test_a_concealed_recording_shows_its_arrays_by_shape_and_range():
     rec = hbjax.concealed_recording("output_saturation", n=1000, key=jax.random.key(0))
     text = repr(rec)
     assert "f64[1000]" in text and "effect='output_saturation'" in text and len(text) < 2000
+
+
+def test_fit_refuses_records_whose_output_never_moves_naming_them():
+    # (every start's least squares gave B = 0, reported as a gauge the user never chose)
+    v = 0.5 + 0.3 * np.sin(2 * np.pi * np.arange(300) / 50)
+    with pytest.raises(ValueError, match="`recordings`: the output y is constant in every"):
+        hbjax.fit((v, np.zeros(300)), na=2, nb=2, m=3, key=jax.random.key(0),
+                  progress=False)

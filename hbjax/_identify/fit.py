@@ -407,6 +407,13 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
             f"`recordings` hold {total_samples(recs)} samples; fitting {q} free parameters "
             f"needs more than {2 * q}."
         )
+    if not any(is_traced(y) for _, y in recs) and all(
+            float(np.ptp(np.asarray(y))) == 0.0 for _, y in recs):
+        # every start's least squares gives B = 0, refused for its gauge: say why instead
+        raise ValueError(
+            "`recordings`: the output y is constant in every record, so there is no "
+            "response to identify a model from (check that y is the output channel and "
+            "that the sensor was connected).")
     # Records far from zero are solved less their centres (centring.py: the powers of v
     # are nearly collinear there, and an output offset swamps the output's unit); the
     # result is reported in the records' own coordinates.
