@@ -40,15 +40,31 @@ def whiteness(eps: np.ndarray, lags: int = 25) -> dict:
             "ljung_box": float(q), "p_value": float(chi2_sf(q, lags))}
 
 
+def lagged_gram(z: np.ndarray, lags: int) -> np.ndarray:
+    """``G[j, k] = sum_t z(t - j) z(t - k)`` over the samples where both lags are recorded
+    (``z`` zero before its start, as :func:`correlation` sums): the covariance, up to the
+    residual variance, of the sums ``sum_t e(t) z(t - k)`` of white residuals ``e``."""
+    n = z.shape[0]
+    windows = np.stack([np.concatenate([np.zeros(min(k, n)), z[:max(n - k, 0)]])
+                        for k in range(lags + 1)], axis=1)
+    return windows.T @ windows
+
+
 def coloured_input_statistic(r: np.ndarray, u: np.ndarray, lags: int) -> tuple[float, int]:
     """``(N r^T R_u^+ r, rank R_u)`` for the cross-correlations ``r`` of white residuals
-    with ``u(t-k)``, ``k = 0..lags``: under the null hypothesis ``r ~ N(0, R_u / N)``,
-    ``R_u`` the input's autocorrelation matrix, so the statistic is chi-square with
-    ``rank R_u`` degrees of freedom whatever the input's colour. (``N sum r^2`` against
-    ``chi2(lags + 1)`` holds for a white input only: with a step input held 25 samples it
-    rejected a correct model at p < 1e-3 in 9.5 % of white residual draws.)"""
-    rv = correlation(u, u, lags)
-    R = rv[np.abs(np.subtract.outer(np.arange(lags + 1), np.arange(lags + 1)))]
+    with ``u(t-k)``, ``k = 0..lags`` (:func:`correlation`): under the null hypothesis
+    ``r ~ N(0, R_u / N)``, ``R_u`` the Gram matrix of the input's lagged windows over its
+    sum of squares (:func:`lagged_gram`), so the statistic is chi-square with ``rank R_u``
+    degrees of freedom whatever the input's colour. (``N sum r^2`` against ``chi2(lags +
+    1)`` holds for a white input only: with a step input held 25 samples it rejected a
+    correct model at p < 1e-3 in 9.5 % of white residual draws. The Toeplitz matrix of the
+    input's autocorrelation stands for the Gram matrix only where it is well conditioned:
+    for a multisine of 5 lines, whose Gram matrix has 10 large eigenvalues and the rest
+    from the record's ends, it made the test reject a true model at 5 % in 0 of 200
+    records, mean p-value 0.84.)"""
+    z = np.asarray(u, float) - np.mean(u)
+    z = z / (np.max(np.abs(z), initial=0.0) or 1.0)
+    R = lagged_gram(z, lags) / (float(np.sum(z * z)) or 1.0)
     w, U = np.linalg.eigh(R)
     keep = w > 1e-8 * w.max()
     z = U[:, keep].T @ r

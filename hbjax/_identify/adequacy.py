@@ -116,12 +116,15 @@ def _whiteness(e, v, valid, n, lags: int):
     svv = jnp.maximum(jnp.sum(v_c**2), tiny)
     r_e = _correlations(e_c, e_c, lags)[1:] / see
     ljung_box = n * (n + 2) * jnp.sum(r_e**2 / (n - jnp.arange(1, lags + 1)))
-    # Cross-correlations with a coloured input are correlated through its autocorrelation
-    # R_v: N r^T R_v^+ r is chi-square with rank(R_v) degrees of freedom (as hbjax.resid).
+    # Cross-correlations with a coloured input are correlated through the Gram matrix R_v of
+    # its lagged windows: N r^T R_v^+ r is chi-square with rank(R_v) degrees of freedom (as
+    # hbjax.resid; the Toeplitz matrix of v's autocorrelation stands for R_v only where it
+    # is well conditioned, and made the test blind under a multisine).
     r_ev = _correlations(e_c, v_c, lags) / jnp.sqrt(see * svv)
-    r_vv = _correlations(v_c, v_c, lags) / svv
-    idx = jnp.arange(lags + 1)
-    w, vec = jnp.linalg.eigh(r_vv[jnp.abs(idx[:, None] - idx[None, :])])
+    t = jnp.arange(v_c.shape[0])
+    windows = jnp.stack([jnp.where(valid & (t >= k), jnp.roll(v_c, k), 0.0)
+                         for k in range(lags + 1)], axis=1)
+    w, vec = jnp.linalg.eigh(windows.T @ windows / svv)
     keep = w > 1e-8 * jnp.max(w)
     z = vec.T @ r_ev
     independence = n * jnp.sum(jnp.where(keep, z**2 / jnp.where(keep, w, 1.0), 0.0))
