@@ -188,6 +188,9 @@ def test_other_numeric_columns_of_any_csv_are_channels(tmp_path):
     q = write(tmp_path, "n.csv", "1 2 9\n3 4 8\n")
     np.testing.assert_array_equal(hbjax.load_recording(q).channels["column 2"], [9.0, 8.0])
     assert dict(hbjax.load_recording(q, output=2).channels) .keys() == {"column 1"}
+    # a time axis is not a recorded signal
+    r = write(tmp_path, "t.csv", "time,v,y,temp\n0,1,2,3\n1,4,5,6\n")
+    assert list(hbjax.load_recording(r, input="v", output="y").channels) == ["temp"]
 
 
 def test_a_brfd_files_other_columns_are_its_channels():

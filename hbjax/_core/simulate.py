@@ -25,9 +25,11 @@ def _check_model(model, cls=AbstractModel, name="model"):
         )
     blocks = jax.tree_util.tree_leaves(model, is_leaf=lambda x: isinstance(x, (Backlash, ARX)))
     for block in blocks:
-        if isinstance(block, (Backlash, ARX)) and any(
-                jnp.ndim(leaf) != 1 for leaf in jax.tree_util.tree_leaves(block)):
-            shapes = [tuple(jnp.shape(leaf)) for leaf in jax.tree_util.tree_leaves(block)]
+        # (the coefficient arrays only: a relaxed backlash also holds a scalar smoothing)
+        coefficients = ([block.c1, block.c2] if isinstance(block, Backlash)
+                        else [block.a, block.b] if isinstance(block, ARX) else [])
+        if any(jnp.ndim(c) != 1 for c in coefficients):
+            shapes = [tuple(jnp.shape(c)) for c in coefficients]
             raise ValueError(
                 f"`{name}` is batched (coefficient shapes {shapes}, expected 1-D): pass one "
                 f"{name} at a time, e.g. under jax.vmap over the batch.")

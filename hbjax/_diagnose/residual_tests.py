@@ -44,10 +44,15 @@ def lagged_gram(z: np.ndarray, lags: int) -> np.ndarray:
     """``G[j, k] = sum_t z(t - j) z(t - k)`` over the samples where both lags are recorded
     (``z`` zero before its start, as :func:`correlation` sums): the covariance, up to the
     residual variance, of the sums ``sum_t e(t) z(t - k)`` of white residuals ``e``."""
+    # (for k = j + d: the sum of z(s) z(s - d) over d <= s < n - j, from one cumulative
+    # sum per d, without the (n, lags + 1) matrix of windows)
     n = z.shape[0]
-    windows = np.stack([np.concatenate([np.zeros(min(k, n)), z[:max(n - k, 0)]])
-                        for k in range(lags + 1)], axis=1)
-    return windows.T @ windows
+    gram = np.zeros((lags + 1, lags + 1))
+    for d in range(min(lags, n - 1) + 1):
+        c = np.concatenate([[0.0], np.cumsum(z[d:] * z[:n - d])])  # c[i]: s < d + i
+        for j in range(lags + 1 - d):
+            gram[j, j + d] = gram[j + d, j] = c[max(n - j - d, 0)]
+    return gram
 
 
 def coloured_input_statistic(r: np.ndarray, u: np.ndarray, lags: int) -> tuple[float, int]:

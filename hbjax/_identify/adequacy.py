@@ -107,6 +107,27 @@ def _rounding(spread, dtype):
     return ROUNDING * jnp.finfo(dtype).eps * spread
 
 
+def _lagged_gram(v_c, valid, lags: int):
+    """``G[j, k] = sum_t x_j(t) x_k(t)`` of the lagged inputs ``x_k(t) = v_c(t - k)`` over
+    the counted errors (``valid``, one run of samples; ``v_c`` zero outside it and before
+    its start), without the ``(T, lags + 1)`` matrix of windows: for ``k = j + d``,
+    ``G[j, k]`` sums ``p_d(s) = v_c(s) v_c(s - d)`` over ``s < end - j`` (``end`` one past
+    the last counted error), one cumulative sum per lag difference ``d`` (the matrix of
+    windows took 7 times the memory of the record under ``vmap``)."""
+    size = v_c.shape[0]
+    t = jnp.arange(size)
+    end = jnp.max(jnp.where(valid, t + 1, 0))
+    j = jnp.arange(lags + 1)
+
+    def diagonal(d):
+        c = jnp.cumsum(jnp.where(t >= d, v_c * jnp.roll(v_c, d), 0.0))
+        at = end - j - 1
+        return jnp.where((at >= 0) & (j + d <= lags), c[jnp.clip(at, 0, size - 1)], 0.0)
+
+    diagonals = jax.lax.map(diagonal, j)  # [d, j] = G[j, j + d]
+    return diagonals[jnp.abs(j[:, None] - j[None, :]), jnp.minimum(j[:, None], j[None, :])]
+
+
 def _whiteness(e, v, valid, n, lags: int):
     """``(ljung_box, independence, dof)`` of one record's errors ``e``."""
     e_c = jnp.where(valid, e - jnp.sum(e) / n, 0.0)
@@ -121,10 +142,7 @@ def _whiteness(e, v, valid, n, lags: int):
     # hbjax.resid; the Toeplitz matrix of v's autocorrelation stands for R_v only where it
     # is well conditioned, and made the test blind under a multisine).
     r_ev = _correlations(e_c, v_c, lags) / jnp.sqrt(see * svv)
-    t = jnp.arange(v_c.shape[0])
-    windows = jnp.stack([jnp.where(valid & (t >= k), jnp.roll(v_c, k), 0.0)
-                         for k in range(lags + 1)], axis=1)
-    w, vec = jnp.linalg.eigh(windows.T @ windows / svv)
+    w, vec = jnp.linalg.eigh(_lagged_gram(v_c, valid, lags) / svv)
     keep = w > 1e-8 * jnp.max(w)
     z = vec.T @ r_ev
     independence = n * jnp.sum(jnp.where(keep, z**2 / jnp.where(keep, w, 1.0), 0.0))

@@ -144,8 +144,12 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
         else:
             mean = jnp.sum(where_valid(mask, y, 0.0)) / jnp.sum(mask)
             d2 = jnp.sum(where_valid(mask, (y - mean) ** 2, 0.0))
-        # (undefined, NaN, for a record whose output never moves: fit_percent refuses it)
-        fits.append(jnp.where(d2 > 0, 100.0 * (1.0 - jnp.sqrt(e2) / jnp.sqrt(
+        # Undefined (NaN) for a record whose output never moves, judged on its range as
+        # fit_percent judges it: the mean taken from a constant leaves rounding in d2.
+        y_in = where_valid(mask, y, jnp.nan)
+        moves = (jnp.nanmax(y_in) - jnp.nanmin(y_in)
+                 > 4 * jnp.finfo(y.dtype).eps * jnp.nanmax(jnp.abs(y_in)))
+        fits.append(jnp.where(moves, 100.0 * (1.0 - jnp.sqrt(e2) / jnp.sqrt(
             jnp.maximum(d2, 1e-300))), jnp.nan))
         num, den = num + e2, den + d2
         # A branch decides the output at the inputs of the instants the play operator is

@@ -165,7 +165,8 @@ def load_recording(
     - The file's other columns become the recording's `channels` (offered to
       :func:`hbjax.diagnose`): those :func:`save_recording` wrote; in any other CSV file,
       every other column that holds a finite number in every row, named by its header
-      (``column j`` without one); a BRFD file's velocity and actuator forces.
+      (``column j`` without one), except one headed ``t`` or ``time``; a BRFD file's
+      velocity and actuator forces.
     - `time`: optional column of sample times; ``dt`` is their (uniform) spacing. Times
       written as ``k * dt`` give back ``dt`` exactly.
     - `dt`: the sampling period, when the file does not give it. A `dt` that disagrees by
@@ -216,7 +217,10 @@ def load_recording(
                 seen[name] = j
             channels = {table.header[j].strip(): table.column(j) for j in extra}
         else:
-            channels = _numeric_channels(table, extra)
+            # (a column named as a time axis is not a recorded signal)
+            channels = _numeric_channels(table, [
+                j for j in extra if table.header is None
+                or table.header[j].strip().lower() not in ("t", "time")])
     v, y, t = columns
     rec_dt = _resolve_dt(p, t, file_dt, dt, time)
     if t is not None:
