@@ -133,7 +133,8 @@ def test_study_summary_reports_intervals():
     true_, mean, se, lo, hi = _numbers(row.split(maxsplit=1)[1])[:5]
     assert mean == pytest.approx(study.mean[1, 1], rel=1e-3)
     assert se == pytest.approx(study.std[1, 1] / np.sqrt(50), rel=1e-3)
-    assert lo < mean < hi and hi - lo == pytest.approx(2 * 1.96 * se, rel=1e-2)
+    # Student's t with 49 degrees of freedom (2.0096), not the normal 1.96
+    assert lo < mean < hi and hi - lo == pytest.approx(2 * 2.0096 * se, rel=1e-2)
     assert "valid realisations : [47, 50] of 50" in text
     assert "failed (" in text
     assert "estimates" not in repr(study) and "slope=" in repr(study)

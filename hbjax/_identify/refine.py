@@ -296,6 +296,8 @@ def _restarted(res, records, recs, restarts, options):
     from .giri import normalise
 
     na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
+    if all(float(np.ptp(np.asarray(y))) == 0.0 for _, y in records):
+        return res  # (fit refuses outputs that never move: nothing for its starts to find)
     alternative = fit(records, na=na, nb=nb, m=m, key=jax.random.PRNGKey(0), starts=restarts,
                       criterion=options["criterion"], initial_state=options["initial_state"],
                       min_sim_fit=options["min_sim_fit"], loop_tolerance=float("inf"),
