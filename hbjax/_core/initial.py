@@ -101,15 +101,21 @@ _GOLDEN_STEPS = 30
 
 
 @eqx.filter_jit
-def _estimate(model: Hammerstein, v, y):
+def _estimate(model: Hammerstein, v, y, n=None):
+    """(``n``: the recorded samples of a record zero-padded to a bucket length, a runtime
+    value: every row beyond them is left out, so one program serves the bucket.)"""
     T = v.shape[0]
     h, g = _basis(model, T, v.dtype)
+    if n is not None:
+        rows = jnp.arange(T) < n
+        h, g, y = jnp.where(rows[:, None], h, 0.0), jnp.where(rows, g, 0.0), jnp.where(rows, y, 0.0)
+    counted = (lambda x: x) if n is None else (lambda x: jnp.where(rows, x, 0.0))
     q = jnp.linalg.qr(h)[0]
     # Columns of 1/A that vanish within the record (a_na = 0) leave r singular: lstsq.
     solve = lambda res: jnp.linalg.lstsq(h, res)[0] if h.shape[1] else jnp.zeros(0, v.dtype)
 
     def cost(u0):
-        res = y - model.simulate_trajectory(v, jnp.zeros_like(v), u0) - u0 * g
+        res = counted(y - model.simulate_trajectory(v, jnp.zeros_like(v), u0) - u0 * g)
         proj = q.T @ res if h.shape[1] else jnp.zeros(0, v.dtype)
         return jnp.sum(res**2) - jnp.sum(proj**2), res
 
@@ -138,7 +144,7 @@ def _estimate(model: Hammerstein, v, y):
     g_perp = perp(g)
 
     def beyond(edge, side):
-        r = perp(y - model.simulate_trajectory(v, jnp.zeros_like(v), edge))
+        r = perp(counted(y - model.simulate_trajectory(v, jnp.zeros_like(v), edge)))
         gg = jnp.sum(g_perp**2)
         # na >= nb: the output lags already span the input lags' response (g_perp ~ 0)
         free = gg > 1e-10 * jnp.sum(g**2)
@@ -153,7 +159,7 @@ def _estimate(model: Hammerstein, v, y):
     # (y0, u0), not the search's ||res||^2 - ||proj||^2: that difference cancels to 0 where
     # the free run is huge (an unstable model 1e15 off the data reported a cost of 0).
     y_sim = model.simulate_trajectory(v, jnp.zeros_like(v), u_best, y0=y0)
-    return InitialState(y0, u_best, jnp.sum((y - y_sim) ** 2))
+    return InitialState(y0, u_best, jnp.sum(counted(y - y_sim) ** 2))
 
 
 def estimate_initial_state(model: Hammerstein, v, y=None) -> InitialState:

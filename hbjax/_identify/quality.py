@@ -108,12 +108,14 @@ def is_stable(a) -> Bool[Array, ""]:
     return jnp.all(jnp.abs(k) < 1.0) & jnp.all(jnp.isfinite(k))
 
 
-def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
+def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero", *,
+                   play_state: bool = False):
     """Free-run fit of ``model`` on each record, in percent,
     ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)`` (``y_sim`` from rest, core operator, as
     :func:`hbjax.simulate`; with ``initial_state="estimate"`` from each record's initial
     state estimated by :func:`hbjax.estimate_initial_state`, or for a padded record its
-    output lags by least squares, :func:`hbjax._identify.stable.remove_start`), the same
+    output lags by least squares, :func:`hbjax._identify.stable.remove_start`, unless
+    ``play_state``: then its output lags and play state as for an unpadded one), the same
     pooled over all records (each centred on its own mean), and the ranges of the input on
     which each branch decides the output.
 
@@ -133,11 +135,15 @@ def simulation_fit(model: Hammerstein, recordings, initial_state: str = "zero"):
         u, y_sim = model.free_run(v, jnp.zeros_like(v), 0.0)
         sources.append(u)
         r = y - y_sim
-        if initial_state == "estimate" and mask is None:
-            r = jnp.sqrt(_estimate(model, v, y).cost)  # the free run's error from it
-        elif initial_state == "estimate":
-            r = remove_start(where_valid(mask, r, 0.0), model.arx.a, model.arx.nb, SIMULATION, mask)
-        e2 = jnp.sum(where_valid(mask, r**2, 0.0))  # an overflowing padded tail is no error
+        if initial_state == "estimate" and (mask is None or play_state):
+            # the free run's error from the estimated state (a padded record's rows beyond
+            # its samples left out: one program per bucket of lengths)
+            e2 = _estimate(model, v, y, None if mask is None else jnp.sum(mask)).cost
+        else:
+            if initial_state == "estimate":
+                r = remove_start(where_valid(mask, r, 0.0), model.arx.a, model.arx.nb,
+                                 SIMULATION, mask)
+            e2 = jnp.sum(where_valid(mask, r**2, 0.0))  # an overflowing padded tail is no error
         e2 = jnp.where(jnp.isfinite(e2), e2, jnp.inf)
         if mask is None:
             d2 = jnp.sum((y - jnp.mean(y)) ** 2)

@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from .._core import display
+from .._core.buckets import padded_records
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, param_names
 from .._results import RESULTS
@@ -326,7 +327,9 @@ def at_estimated_start(res: "AbstractRefinement", recordings) -> "AbstractRefine
     and can read lower than the solve's (which the floor was judged on), and compare,
     which fits those lags, reads at least the solve's: the higher figure is compare's in
     both cases, and a success never shows a figure below its floor."""
-    fits, pooled, _, _ = simulation_fit(res.model, recordings, "estimate")
+    # (on the records padded to their buckets: a new record length compiles nothing new)
+    fits, pooled, _, _ = simulation_fit(res.model, padded_records(recordings), "estimate",
+                                        play_state=True)
     keep = lambda new, old: jnp.where(jnp.isnan(new), old, jnp.maximum(new, old))  # noqa: E731
     return dataclasses.replace(res, sim_fit=keep(fits, res.sim_fit),
                                sim_fit_pooled=keep(pooled, res.sim_fit_pooled))
