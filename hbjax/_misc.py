@@ -355,3 +355,17 @@ def t_quantile(q: float, dof: int) -> float:
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if cdf(mid) < q else (lo, mid)
     return 0.5 * (lo + hi)
+
+
+def no_spread(y: np.ndarray, eps: float | None = None) -> bool:
+    """Whether ``y`` is constant up to rounding (``eps``: that of the data as given, by
+    default its dtype's), so that a fit percentage relative to its spread is undefined
+    and there is no response to identify or diagnose. Judged on the peak-to-peak range,
+    exact in floating point: the mean subtracted from a constant record leaves rounding
+    noise that would divide the error. The one test of an output (or input) that never
+    moves for ``fit``, ``refine``, ``compare``, ``select_structure`` and ``diagnose``; the
+    traced free-run fit (``_identify/quality.py``) applies the same rule in ``jnp``."""
+    y = np.asarray(y)
+    if eps is None:
+        eps = np.finfo(y.dtype if np.issubdtype(y.dtype, np.floating) else float).eps
+    return bool(np.ptp(y) <= 4 * eps * np.max(np.abs(y)))

@@ -137,3 +137,17 @@ def test_fit_refuses_records_whose_output_never_moves_naming_them():
     with pytest.raises(ValueError, match="`recordings`: the output y is constant in every"):
         hbjax.fit((v, np.zeros(300)), na=2, nb=2, m=3, key=jax.random.key(0),
                   progress=False)
+
+
+def test_an_output_constant_up_to_rounding_is_refused_alike_everywhere():
+    # One rule (`no_spread`) for fit, diagnose and compare: a level held at 5 whose samples
+    # differ only in the last bit was refused by compare but fitted and diagnosed before.
+    v = 5.0 * np.sin(0.05 * np.arange(600))
+    y = np.full(600, 5.0)
+    y[::7] = np.nextafter(5.0, 6.0)
+    with pytest.raises(ValueError, match="`recordings`: the output y is constant in every"):
+        hbjax.fit((v, y), na=1, nb=1, m=2, key=jax.random.key(0), progress=False)
+    with pytest.raises(ValueError, match="`y` is constant"):
+        hbjax.diagnose(hbjax.default_system(), v, y, progress=False)
+    with pytest.raises(ValueError, match="`y` is constant"):
+        hbjax.compare(hbjax.default_system(), v, y)

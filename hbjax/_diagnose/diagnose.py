@@ -39,6 +39,7 @@ from .._misc import (
     check_key,
     check_values,
     fraction,
+    no_spread,
     same_length,
 )
 from .._misc import jsonable as _jsonable
@@ -89,12 +90,12 @@ def _check_inputs(model, v, y, holdout, effects, key):
         raise ValueError(
             f"record too short for `holdout`={holdout}: {n} samples give {n_fit} to fit and "
             f"{n_hold} held out; need at least {need_fit} to fit and 50 held out.")
-    if float(jnp.max(v) - jnp.min(v)) == 0.0:
+    if no_spread(np.asarray(v)):
         raise ValueError(
             "`v` is constant: a constant input holds the backlash at one value, so the "
             "recording cannot show the input's effect and a mismatch in it cannot be told "
             "from noise (check that `v` is the input channel).")
-    if float(jnp.max(y) - jnp.min(y)) == 0.0:
+    if no_spread(np.asarray(y)):
         raise ValueError(
             f"`y` is constant (every sample {float(y[0]):g}): a recorded output that never "
             "moves shows no dynamics to compare with the nominal model (check that `y` is the "

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from .._misc import as_float_array, check_finite, chi2_sf, same_length
+from .._misc import as_float_array, check_finite, chi2_sf, no_spread, same_length
 
 Z99 = 2.5758293035489004  # two-sided 99% normal quantile
 
@@ -226,15 +226,6 @@ def fit_percent(y, y_hat) -> float:
     # then neither overflow nor underflow whatever the data's units.
     scale = 2.0 ** -np.frexp(peak)[1]
     return fit_percent_unchecked(y * scale, y_hat * scale)
-
-
-def no_spread(y: np.ndarray, eps: float = np.finfo(float).eps) -> bool:
-    """Whether ``y`` is constant up to rounding (``eps``: that of the data as given), so
-    that a fit percentage relative to its spread is undefined. Judged on the peak-to-peak
-    range, exact in floating point: the mean subtracted from a constant record leaves
-    rounding noise that would divide the error."""
-    y = np.asarray(y)
-    return bool(np.ptp(y) <= 4 * eps * np.max(np.abs(y)))
 
 
 def fit_percent_unchecked(y: np.ndarray, y_hat: np.ndarray) -> float:

@@ -10,7 +10,8 @@ from .._core import display
 from .._core.initial import InitialState, estimate_initial_state, injection, unstable_why
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
-from .._diagnose.residual_tests import fit_percent_unchecked, no_spread
+from .._diagnose.residual_tests import fit_percent_unchecked
+from .._misc import no_spread
 from .._misc import as_float_array, check_magnitude, float_dtype, is_traced, lagged, same_length
 from .recordings import as_input_output
 from .refine_result import AbstractRefinement

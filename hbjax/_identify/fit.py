@@ -21,7 +21,7 @@ from .._core.backlash import Backlash
 from .._core.cache import ensure_compilation_cache
 from .._core.mappings import release_compiled_programs
 from .._core.progress import check_progress, progress_bar
-from .._misc import check_bool, check_key, is_traced, positive_int
+from .._misc import check_bool, check_key, is_traced, no_spread, positive_int
 from .._core.precision import require_x64
 from .centring import at_better_start, in_recorded_coordinates, less_centres, record_centres
 from .criteria import data_scale
@@ -408,7 +408,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
             f"needs more than {2 * q}."
         )
     if not any(is_traced(y) for _, y in recs) and all(
-            float(np.ptp(np.asarray(y))) == 0.0 for _, y in recs):
+            no_spread(np.asarray(y)) for _, y in recs):
         # every start's least squares gives B = 0, refused for its gauge: say why instead
         raise ValueError(
             "`recordings`: the output y is constant in every record, so there is no "
@@ -438,7 +438,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                   or res.result == RESULTS.branches_between_levels):
         raise RefinementError(f"fit: the best start succeeded, but {res.message}.")
     if throw and res.result != RESULTS.successful:
-        if all(float(np.ptp(np.asarray(v))) == 0.0 for v, _ in recs):
+        if all(no_spread(np.asarray(v)) for v, _ in recs):
             # the generic advice (slow poles, other starts) does not apply: nothing moved
             raise RefinementError(
                 f"fit: no start succeeded; the best: {res.message.rstrip('.')}. Here the "

@@ -19,7 +19,8 @@ from .._core.cache import ensure_compilation_cache
 from .._core.model import Hammerstein
 from .._core.params import flatten_params, gauge_factor, param_names
 from .._core.precision import require_x64
-from .._misc import check_bool, is_real_scalar, is_traced, positive_float, positive_int
+from .._misc import (check_bool, is_real_scalar, is_traced, no_spread, positive_float,
+                     positive_int)
 from .._results import RESULTS, code, raise_if_failed
 from .adequacy import LEVEL
 from .centring import (at_better_start, in_recorded_coordinates, less_centres, refine_centres,
@@ -296,7 +297,7 @@ def _restarted(res, records, recs, restarts, options):
     from .giri import normalise
 
     na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
-    if all(float(np.ptp(np.asarray(y))) == 0.0 for _, y in records):
+    if all(no_spread(np.asarray(y)) for _, y in records):
         return res  # (fit refuses outputs that never move: nothing for its starts to find)
     alternative = fit(records, na=na, nb=nb, m=m, key=jax.random.PRNGKey(0), starts=restarts,
                       criterion=options["criterion"], initial_state=options["initial_state"],
