@@ -114,6 +114,7 @@ def model_html(model) -> str:
 #: ``(attribute path, label)`` of the fit figures a result summary shows when present.
 FIGURES = (
     ("criterion", "criterion"),
+    ("criterion_choice", "criterion chosen"),
     ("gauge", "gauge"),
     ("noise_std", "noise std (criterion's residuals)"),  # equation or output error
     ("sim_fit_pooled", "free-run fit on estimation data (%)"),
@@ -159,7 +160,7 @@ def result_figures(result) -> dict:
     for path, label in FIGURES:
         value = _lookup(result, path)
         c = concrete(value)
-        if value is None or (c is not None and c.dtype.kind == "f" and c.size
+        if value is None or (isinstance(value, str) and not value) or (c is not None and c.dtype.kind == "f" and c.size
                              and np.all(np.isnan(c))):
             continue  # absent, or not computed (NaN: e.g. residual tests of a good fit)
         if path == "sim_fit" and c is not None and np.any(np.isnan(c)):

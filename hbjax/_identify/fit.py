@@ -24,7 +24,8 @@ from .._core.progress import check_progress, progress_bar
 from .._misc import check_bool, check_key, is_traced, no_spread, positive_int
 from .._core.precision import require_x64
 from .centring import at_better_start, in_recorded_coordinates, less_centres, record_centres
-from .criteria import data_scale
+from .criteria import PREDICTION, SIMULATION, data_scale
+from .fit_criterion import AUTO, choose_criterion
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
     arx_given_backlash, canonical_labels, closing_band, closing_count, closing_positions,
@@ -36,7 +37,7 @@ from .recordings import as_recordings, check_branch_degree, check_criterion, tot
 from .quality import SIM_FIT_FLOOR
 from .stable import check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
-from .refine import check_floor, refine_traceable
+from .refine import check_floor, refine, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
 from .free_run import judge_free_run
 from .undetermined import judge_branches, refuse_unseen
@@ -81,6 +82,11 @@ class FitResult(AbstractRefinement):
       closing starts (the last quarter) count too, and on data whose loop stays open they
       often end elsewhere (0.78 on a staircase record of the default system, 32 starts).
     - `best_index`: which start won.
+    - `criterion`: the criterion of the reported model; `criterion_choice`: with the
+      default ``criterion="auto"``, how it was chosen (the whiteness p-value of the
+      prediction optimum's one-step errors, :mod:`hbjax._identify.fit_criterion`); where
+      the output-error refinement was adopted, the starts' fields (`starts_costs` ...
+      `best_index`) describe the prediction criterion's starts it began from.
     """
 
     starts_costs: Float[Array, " starts"]
@@ -93,6 +99,7 @@ class FitResult(AbstractRefinement):
     criterion: str = eqx.field(static=True, default="prediction")
     gauge: str = eqx.field(static=True, default="static_gain")
     initial_state: str = eqx.field(static=True, default="zero")
+    criterion_choice: str = eqx.field(static=True, default="")
     # set by the final judgement (undetermined.judge_branches), which every fit runs
     interpolation_ratio: Float[Array, ""] | None = None
     # set by free_run.judge_free_run on an eager fit's success
@@ -313,7 +320,7 @@ def _solve(recs, key, centres, traced, loop_tolerance, options):
 
 
 def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
-        criterion: str = "prediction", max_steps: int = 256,
+        criterion: str = AUTO, max_steps: int = 256,
         min_sim_fit: float = SIM_FIT_FLOOR, initial_state: str = "estimate",
         loop_tolerance: float = LOOP_TOLERANCE, throw: bool = True,
         progress=True) -> FitResult:
@@ -357,7 +364,14 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     - `na`, `nb`, `m`: orders of ``A``, ``B`` and the number of coefficients per branch.
     - `key`: a JAX PRNG key (the starts).
     - `starts`: number of starts.
-    - `criterion`: ``"prediction"`` (equation error) or ``"simulation"`` (output error).
+    - `criterion`: ``"auto"`` (default), ``"prediction"`` (equation error) or
+      ``"simulation"`` (output error). ``"auto"`` fits with the prediction criterion and
+      keeps that result where its one-step errors pass the whiteness test (p >= 1e-3,
+      the equation-error model of eq. (10) holds); where they are coloured (noise at the
+      sensor, or dynamics the model lacks) it refines the optimum with the simulation
+      criterion, consistent under either noise, and reports that where it succeeds
+      (`criterion_choice` says which and why; :mod:`hbjax._identify.fit_criterion`).
+      Under ``jax.jit`` ``"auto"`` is the prediction criterion.
     - `max_steps`: Levenberg–Marquardt steps per start.
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data below
       which a start is not a success (``RESULTS.poor_fit``; default 0 %).
@@ -396,7 +410,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     m = check_branch_degree(m)
     starts = positive_int(starts, "starts")
     max_steps = positive_int(max_steps, "max_steps")
-    check_criterion(criterion)
+    auto = check_criterion(criterion, also=(AUTO,)) == AUTO
     check_initial_state(initial_state)
     check_key(key)
     loop_tolerance = check_loop_tolerance(loop_tolerance)
@@ -417,7 +431,8 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     # Records far from zero are solved less their centres (centring.py: the powers of v
     # are nearly collinear there, and an output offset swamps the output's unit); the
     # result is reported in the records' own coordinates.
-    options = dict(na=na, nb=nb, m=m, starts=starts, criterion=criterion,
+    options = dict(na=na, nb=nb, m=m, starts=starts,
+                   criterion=PREDICTION if auto else criterion,
                    max_steps=max_steps, min_sim_fit=check_floor(min_sim_fit),
                    initial_state=initial_state)
     traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
@@ -428,6 +443,13 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         if initial_state == "estimate" and not traced:
             res = at_better_start(lambda c: _solve(recs, key, c, traced, loop_tolerance,
                                                    options), recs, centres, res)
+        if auto and not traced:
+            res = choose_criterion(res, recs, initial_state=initial_state,
+                                   refine_output_error=lambda model: refine(
+                model, recs, criterion=SIMULATION, max_steps=max_steps,
+                min_sim_fit=options["min_sim_fit"], initial_state=initial_state,
+                throw=False), adopt=lambda res, refined: _adopt(
+                    res, refined, recs, loop_tolerance))
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
@@ -449,9 +471,22 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         raise RefinementError(
             f"fit: no start succeeded; the best: {res.message.rstrip('.')}. Try more "
             "`starts` or `max_steps`, other orders"
-            + (", or criterion='simulation'." if criterion == "prediction" else ".")
+            + (", or criterion='simulation'." if options["criterion"] == PREDICTION
+               else ".")
         )
     return res
+
+
+def _adopt(res: FitResult, refined, recordings, loop_tolerance) -> FitResult:
+    """`res` with the chosen start's fields replaced by the output-error refinement
+    `refined` (a :class:`RefineResult` on the same records), judged as :func:`fit` judges
+    its best start."""
+    na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
+    out = dataclasses.replace(res, **_chosen(refined, recordings, na, nb, m),
+                              criterion=SIMULATION, interpolation_ratio=None,
+                              free_run_spread=None)
+    return judge_free_run(judge_branches(judge_loop(out, recordings, loop_tolerance),
+                                         recordings), recordings)
 
 
 def normalise_static_gain(model: Hammerstein) -> Hammerstein:

@@ -143,9 +143,12 @@ def check_branch_degree(m, name: str = "m") -> int:
     return m
 
 
-def check_criterion(criterion) -> str:
-    if criterion not in CRITERIA:
-        raise ValueError(f"`criterion` must be one of {CRITERIA}, got {criterion!r}.")
+def check_criterion(criterion, also: tuple = ()) -> str:
+    """`criterion` if it is one of :data:`CRITERIA` (or of `also`, a caller's own
+    choices), else a ``ValueError`` naming them."""
+    if criterion not in CRITERIA + tuple(also):
+        raise ValueError(f"`criterion` must be one of {tuple(also) + CRITERIA}, got "
+                         f"{criterion!r}.")
     return criterion
 
 
