@@ -269,6 +269,12 @@ def test_identify_fit_on_ordinary_recordings(tmp_path, system):
     model = hbjax.load_model(tmp_path / "fit.json")
     np.testing.assert_allclose(hbjax.flatten_params(model),
                                hbjax.flatten_params(hbjax.normalise_static_gain(system)), atol=0.05)
+    assert "criterion: simulation" in proc.stdout  # the command's default
+    # hbjax.fit's default: equation noise leaves the one-step errors white
+    proc = run("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, *records, "--input", "v",
+               "--output", "y", "--starts", 8, "--criterion", "auto", "--out", "auto.json",
+               cwd=tmp_path)
+    assert "criterion: auto: prediction (one-step errors white" in proc.stdout
 
 
 def test_identify_fit_loop_tolerance_is_checked_as_typed(tmp_path, system):

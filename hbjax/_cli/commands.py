@@ -372,6 +372,7 @@ def cmd_identify_fit(args) -> int:
     fits = ", ".join(record_fit_text(f) for f in np.atleast_1d(np.asarray(result.sim_fit)))
     start = "estimated initial state" if args.initial_state == "estimate" else "zero start"
     print(f"  free-run fit on the recording(s) ({start}): {fits}")
+    print(f"  criterion: {result.criterion_choice or result.criterion}")
     print(f"wrote {args.out}")
     return 0
 

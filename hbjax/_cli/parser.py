@@ -89,8 +89,8 @@ def _columns(command):
     command.add_argument("--output", default=None, help="output column (default: the second)")
 
 
-def _criterion(command, default, help):
-    command.add_argument("--criterion", choices=CRITERIA, default=default, help=help)
+def _criterion(command, default, help, choices=CRITERIA):
+    command.add_argument("--criterion", choices=choices, default=default, help=help)
 
 
 
@@ -264,7 +264,9 @@ def build_parser() -> argparse.ArgumentParser:
     fitp.add_argument("--starts", type=int, default=32, help="random starts (default 32)")
     _seed(fitp, "the starts")
     _criterion(fitp, "simulation",
-               "free-run simulation error (default) or one-step prediction error")
+               "free-run simulation error (default), one-step prediction error, or auto "
+               "(hbjax.fit's default: prediction where its one-step errors are white, else "
+               "the free-run refinement of its optimum)", choices=("auto",) + CRITERIA)
     fitp.add_argument("--initial-state", choices=("estimate", "zero"), default="estimate",
                       help="estimate the initial state (default) or start from rest at zero")
     fitp.add_argument("--max-steps", type=int, default=None,
