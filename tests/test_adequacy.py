@@ -13,6 +13,7 @@ generator (``tests/generators/paper_class.py``).
 import jax
 import numpy as np
 import pytest
+import scipy.signal
 
 import hbjax
 from tests.generators.paper_class import (
@@ -161,3 +162,24 @@ def test_noise_free_outputs_unrelated_to_the_input_are_not_successes(criterion):
     if fitted.result == hbjax.RESULTS.branches_cross:
         assert float(np.max(np.abs(np.concatenate([bl.c1, bl.c2])))) * float(
             np.max(np.abs(v))) ** 2 < 1e-9 * float(np.ptp(y))
+
+
+def test_a_fit_with_no_success_reports_a_judged_start_before_a_solver_failure():
+    # An output unrelated to the input, fitted by its free run: most starts converge and are
+    # refused for no input effect, one ends at a singular linear solve with a lower cost.
+    # The report is the records' ("no input effect"), not the linear solver's text.
+    rng = np.random.default_rng(123)
+    white = rng.normal(size=1000)  # first-order low-pass white noise, peak 1
+    alpha = rng.uniform(0.5, 0.95)
+    v = scipy.signal.lfilter([1.0 - alpha], [1.0, -alpha], white)
+    v = (v - v.mean()) / np.max(np.abs(v - v.mean()))
+    y = np.cumsum(rng.normal(size=1000))
+    res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.key(0), criterion="simulation",
+                    throw=False, progress=False)
+    codes = np.asarray(res.starts_result)
+    judged = hbjax.RESULTS.no_input_effect
+    assert res.result == judged, res.message
+    assert np.any(codes == int(judged._value))
+    with pytest.raises(hbjax.RefinementError, match="does not predict the output"):
+        hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.key(0), criterion="simulation",
+                  progress=False)

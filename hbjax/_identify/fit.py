@@ -191,13 +191,28 @@ def _score(res):
                      jnp.where(jnp.isfinite(cost), 1e300, jnp.inf))
 
 
+#: Failures of a start whose solve converged and whose model was then judged: what they
+#: say is about the records (no input effect, below the floor ...), not about the solver.
+_JUDGED = (RESULTS.branches_cross, RESULTS.unstable, RESULTS.poor_fit, RESULTS.closing_loop,
+           RESULTS.no_input_effect)
+
+
 def _best_start(res):
     """``(ok, costs, best)``: which starts succeeded, their costs (``inf`` where not) and
-    the best one (if none succeeded, the least bad, reported with its failure code)."""
+    the best one. If none succeeded, the least bad, reported with its failure code: the
+    lowest cost among the starts whose solve converged and was judged (:data:`_JUDGED`),
+    else among those with a finite cost. (An output unrelated to the input, fitted with
+    the simulation criterion, ended with its lowest cost at a singular linear solve while
+    the other starts said "no input effect": the solver's text was reported.)"""
     ok = res.result == RESULTS.successful
     costs = jnp.where(ok, res.stats["cost"], jnp.inf)
-    best = jnp.where(jnp.any(ok), jnp.argmin(costs), jnp.argmin(
-        jnp.where(jnp.isfinite(res.stats["cost"]), res.stats["cost"], jnp.inf)))
+    finite = jnp.where(jnp.isfinite(res.stats["cost"]), res.stats["cost"], jnp.inf)
+    judged = jnp.zeros_like(ok)
+    for item in _JUDGED:
+        judged = judged | (res.result == item)
+    least_bad = jnp.where(jnp.any(judged & jnp.isfinite(finite)),
+                          jnp.argmin(jnp.where(judged, finite, jnp.inf)), jnp.argmin(finite))
+    best = jnp.where(jnp.any(ok), jnp.argmin(costs), least_bad)
     return ok, costs, best
 
 
