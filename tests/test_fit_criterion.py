@@ -49,6 +49,10 @@ def test_auto_keeps_the_prediction_criterion_under_equation_noise_and_leaves_it_
             switched += 1
             assert "coloured" in auto.criterion_choice
             assert "criterion chosen" in str(auto.summary())
+            # asked for, the prediction criterion's result is kept and says what is wrong
+            assert pred.criterion == "prediction"
+            assert pred.criterion_choice.startswith(
+                "prediction, as asked; its one-step errors are coloured"), pred.criterion_choice
         gains.append(_validation_fit(auto.model, v_val, y_val)
                      - _validation_fit(pred.model, v_val, y_val))
     gains = np.array(gains)

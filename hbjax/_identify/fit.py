@@ -84,8 +84,10 @@ class FitResult(AbstractRefinement):
     - `best_index`: which start won.
     - `criterion`: the criterion of the reported model; `criterion_choice`: with the
       default ``criterion="auto"``, how it was chosen (the whiteness p-value of the
-      prediction optimum's one-step errors, :mod:`hbjax._identify.fit_criterion`); where
-      the output-error refinement was adopted, the starts' fields (`starts_costs` ...
+      prediction optimum's one-step errors, :mod:`hbjax._identify.fit_criterion`); with
+      ``criterion="prediction"`` asked for, a note where those errors are coloured (the
+      criterion's noise assumption fails), else empty; where the output-error refinement
+      was adopted, the starts' fields (`starts_costs` ...
       `best_index`) describe the prediction criterion's starts it began from.
     """
 
@@ -458,8 +460,8 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         if initial_state == "estimate" and not traced:
             res = at_better_start(lambda c: _solve(recs, key, c, traced, loop_tolerance,
                                                    options), recs, centres, res)
-        if auto and not traced:
-            res = choose_criterion(res, recs, initial_state=initial_state,
+        if options["criterion"] == PREDICTION and not traced:
+            res = choose_criterion(res, recs, initial_state=initial_state, auto=auto,
                                    refine_output_error=lambda model: refine(
                 model, recs, criterion=SIMULATION, max_steps=max_steps,
                 min_sim_fit=options["min_sim_fit"], initial_state=initial_state,

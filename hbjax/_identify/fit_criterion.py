@@ -55,16 +55,24 @@ def prediction_whiteness(model, recordings, initial_state: str) -> float:
     return float(whiteness_p(model, recordings, sources)[0])
 
 
-def choose_criterion(res, recordings, *, initial_state, refine_output_error, adopt):
+def choose_criterion(res, recordings, *, initial_state, refine_output_error, adopt,
+                     auto: bool = True):
     """`res` (the prediction criterion's :class:`hbjax.FitResult`, concrete) as ``"auto"``
     reports it: unchanged, with the whiteness it was judged on, where its one-step errors
     are white at :data:`COLOURED_P` (or it is not a success); otherwise the output-error
     refinement from its model, ``refine_output_error(model)`` (a
     :class:`hbjax.RefineResult`), made a fit result by ``adopt(res, refined)`` where that
-    refinement succeeds."""
+    refinement succeeds. With ``auto=False`` (the prediction criterion asked for) the
+    result is kept and, where its errors are coloured, `criterion_choice` says so."""
     if res.criterion != PREDICTION or res.result != RESULTS.successful:
         return res
     p = prediction_whiteness(res.model, recordings, initial_state)
+    if not auto:
+        return res if not p < COLOURED_P else dataclasses.replace(
+            res, criterion_choice=(
+                f"prediction, as asked; its one-step errors are coloured (p = {p:.2g}): "
+                f"with noise at the sensor this criterion is biased (criterion='auto' or "
+                f"'simulation' fits the free run), or the model lacks dynamics"))
     if not p < COLOURED_P:
         return dataclasses.replace(
             res, criterion_choice=f"auto: prediction (one-step errors white, p = {p:.2g})")
