@@ -1,5 +1,6 @@
 """Readable models and results: reprs with numbers, summaries, Jupyter HTML."""
 
+import dataclasses
 import re
 
 import equinox as eqx
@@ -78,9 +79,21 @@ def test_refine_result_repr_and_summary(refined):
         assert lo == pytest.approx(est - 1.96 * sd, rel=2e-3, abs=1e-3 * sd)
         assert hi == pytest.approx(est + 1.96 * sd, rel=2e-3, abs=1e-3 * sd)
     assert "result: success" in summary
+    assert "understate the error" not in summary
     assert re.search(r"noise std \(criterion's residuals\)\s*: 0\.0(19|2)", summary)
     html = refined._repr_html_()
     assert html.startswith("<div>") and "95% interval" in html and "<table>" in html
+
+
+def test_a_success_whose_branches_cross_says_its_errors_may_be_understated(refined):
+    # (an outside probe: branches pressed together at a recorded level, errors 8-34 of the
+    # reported standard errors, shown as a plain success)
+    assert not bool(refined.branches_cross)
+    crossed = dataclasses.replace(refined, branches_cross=jnp.asarray(True))
+    assert "can understate the error" in crossed.summary()
+    assert "can understate the error" in crossed._repr_html_()
+    failed = dataclasses.replace(crossed, result=hbjax.RESULTS.poor_fit)
+    assert "understate" not in failed.summary()  # a failure's message says what is wrong
 
 
 def test_unidentified_parameters_are_flagged(refined):

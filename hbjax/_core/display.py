@@ -181,10 +181,25 @@ def record_fit_text(fit) -> str:
     return "undefined (output constant)" if np.isnan(fit) else f"{float(fit):.1f} %"
 
 
+#: What a success whose branches cross or meet at recorded inputs says of its errors.
+KINK_NOTE = ("The branches cross or meet at recorded inputs: the estimate may sit on the "
+             "band rule's kink, where these standard errors (a linearisation) can "
+             "understate the error (docs/refinement.md, 'The band stays a band').")
+
+
+def kink_notes(result) -> tuple:
+    """:data:`KINK_NOTE` for a concrete, unbatched success with ``branches_cross``."""
+    crossed = concrete(getattr(result, "branches_cross", None))
+    if crossed is None or crossed.shape != () or not bool(crossed):
+        return ()
+    return (KINK_NOTE,) if message_of(result) == "success" else ()
+
+
 def estimation_summary(result, title: str, *, covariance=None, extra=None) -> Summary:
-    """:func:`result_summary` with the :func:`result_figures` of `result`."""
+    """:func:`result_summary` with the :func:`result_figures` of `result`, and
+    :func:`kink_notes`."""
     return result_summary(result, title, figures=result_figures(result),
-                          covariance=covariance, extra=extra)
+                          covariance=covariance, extra=extra, notes=kink_notes(result))
 
 
 def findings_table(findings) -> Table:
