@@ -28,7 +28,9 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
     singular_vandermonde = "the Vandermonde systems (45)-(46) are singular"
     gap_not_crossed = (
         "the data contradict the design: v = +h_m does not put the output on P1 and "
-        "v = -h_m on P2 (P2*(-h_m) - P1*(h_m) should be 1); increase h_m (assumption A4)"
+        "v = -h_m on P2 (P2*(-h_m) - P1*(h_m) should be 1); increase h_m (assumption A4), "
+        "or, where the noise is at the sensor rather than in the equation (A6), which "
+        "biases the closed form, identify with hbjax.fit"
     )
     # --- refinement ---
     gauge_undefined = (
