@@ -62,7 +62,7 @@ from .level_cascade import ON_NOMINAL as CASCADE
 from .level_cascade import level_cascade_on_nominal
 from .residual_tests import plateaus
 from .result import Diagnosis, Finding
-from .signatures import change_scan, residual_signatures
+from .signatures import change_scan, independence_after_noise_model, residual_signatures
 from .solve import evaluate_batch, jacobian
 
 __all__ = ["Diagnosis", "Finding", "diagnose"]
@@ -284,6 +284,10 @@ def _diagnose(model, v, y, holdout, effects, key, criterion, bar, channels=None,
     findings = order_by_held_out(
         place_by_free_run(rank(findings), criterion, v, y, n_fit, free_runs),
         v, y, n_fit, free_runs)
+    if findings and not any(f.mechanism for f in findings):
+        # A noise model alone explains coloured errors, not errors the input predicts.
+        tests["independence_after_noise_model"] = independence_after_noise_model(
+            findings[0].model, v_fit, y_fit, u_nom[:n_fit], burn)
     verdict, detail = vd.verdict(findings, tests)
     tests["unexplained_structure"] = verdict == "unexplained"
     bar.update(1)

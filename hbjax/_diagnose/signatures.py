@@ -4,6 +4,7 @@ input's spectrum) and a Gauss-Newton change-point scan. The candidates start fro
 
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 from .._misc import chi2_sf
@@ -38,6 +39,16 @@ def _independence(e, v, u):
     rows = {"input": rt.independence(e, v), "internal signal": rt.independence(e, u)}
     against, row = min(rows.items(), key=lambda kv: kv[1]["p_value"])
     return {**row, "p_value": min(1.0, 2.0 * row["p_value"]), "against": against}
+
+
+def independence_after_noise_model(model, v, y, u, burn):
+    """:func:`_independence` of a noise-model finding's own one-step errors (its predictor
+    whitens the nominal errors): whether the input still predicts what the noise model
+    leaves. The nominal errors of a recording whose mismatch is only coloured noise are
+    coloured, and a cross-correlation test assuming white errors rejects on them by their
+    colour alone; the whitened errors are what the test is calibrated for."""
+    e = np.asarray(y) - np.asarray(model.predict_trajectory(jnp.asarray(v), jnp.asarray(y), 0.0))
+    return _independence(e[burn:], np.asarray(v)[burn:], np.asarray(u)[burn:])
 
 
 def change_scan(J, e, burn, grid=100):

@@ -7,8 +7,10 @@
   simulation** significantly (or, for a mechanism a noise model can mimic, its held-out
   one-step prediction while beating that noise model in BIC: ``noise_rival``), or (at most) a
   noise-model finding (``colored_noise``) that improves the held-out one-step prediction.
-- ``"unexplained"``: no finding, but a residual test rejects. The structure is real, the
-  library has no mechanism for it; the report names the rejecting tests and the regime
+- ``"unexplained"``: no finding, but a residual test rejects; or only noise-model findings,
+  whose own (whitened) one-step errors the input still predicts
+  (``tests["independence_after_noise_model"]`` rejects: a noise model cannot explain an
+  effect of the input). The structure is real, the library has no mechanism for it; the report names the rejecting tests and the regime
   variable (output level, input level, input rate, motion direction, time) whose bins
   explain most of the nominal simulation residual: where to look.
 
@@ -57,6 +59,10 @@ def verdict(findings: list, tests: dict) -> tuple[str, dict]:
     (see :func:`regime_driver`)."""
     rejected = rejected_tests(tests)
     detail = {"rejected": rejected, "regime": regime_driver(tests)}
+    after = tests.get("independence_after_noise_model")
+    if after is not None and not float(after["p_value"]) >= REJECT_P:
+        detail["rejected"] = ["independence after the noise model"]
+        return "unexplained", detail
     if findings:
         return "explained", detail
     if rejected:
@@ -92,6 +98,11 @@ def sentence(verdict_: str, detail: dict, findings: list) -> str:
         where = (f" The {reg['variable']} explains most of the nominal residual "
                  f"({100 * reg['explained']:.0f}% of its variance by bins{rng}).")
     rejected = detail.get("rejected") or []
+    if rejected == ["independence after the noise model"]:
+        return (f"Verdict: structured but unexplained. A noise model improves the one-step "
+                f"prediction, but the input still predicts its whitened errors (independence "
+                f"p < {REJECT_P:g}), which no noise model can explain, and no mechanism of the "
+                f"library improves the held-out free-run simulation significantly.{where}")
     tests = (" and ".join(rejected) + (" tests reject" if len(rejected) > 1 else " test rejects")
              if rejected else "residual tests reject")
     return (f"Verdict: structured but unexplained. The {tests} (p < {REJECT_P:g}) "
