@@ -274,7 +274,7 @@ def test_identify_fit_on_ordinary_recordings(tmp_path, system):
     proc = run("identify", "fit", "--na", 2, "--nb", 2, "--m", 3, *records, "--input", "v",
                "--output", "y", "--starts", 8, "--criterion", "auto", "--out", "auto.json",
                cwd=tmp_path)
-    assert "criterion: auto: prediction (one-step errors white" in proc.stdout
+    assert "criterion: auto: prediction (its one-step errors are white)" in proc.stdout
 
 
 def test_identify_fit_loop_tolerance_is_checked_as_typed(tmp_path, system):

@@ -2,6 +2,8 @@
 systems of the independent generator: the prediction result stands under equation noise,
 and noise at the sensor, which biases it, is answered by the output-error refinement."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -38,7 +40,8 @@ def test_auto_keeps_the_prediction_criterion_under_equation_noise_and_leaves_it_
         y_eq = simulate_numpy(s, v, sd / noise_gain(s["a"]) * rng.standard_normal(v.size))[0]
         res = hbjax.fit((v, y_eq), **fit)
         assert res.criterion == "prediction", res.criterion_choice
-        assert res.criterion_choice.startswith("auto: prediction (one-step errors white")
+        assert res.criterion_choice == "auto: prediction (its one-step errors are white)"
+        assert float(res.prediction_whiteness_p) >= 1e-3
 
         # Noise at the output: the prediction optimum is biased (errors in variables).
         y_out = y_clean + sd * rng.standard_normal(v.size)
@@ -48,6 +51,7 @@ def test_auto_keeps_the_prediction_criterion_under_equation_noise_and_leaves_it_
         if auto.criterion == "simulation":
             switched += 1
             assert "coloured" in auto.criterion_choice
+            assert float(auto.prediction_whiteness_p) < 1e-3
             assert "criterion chosen" in str(auto.summary())
             # asked for, the prediction criterion's result is kept and says what is wrong
             assert pred.criterion == "prediction"
@@ -67,3 +71,62 @@ def test_auto_is_refused_where_only_the_two_criteria_are_meant():
         hbjax.refine(hbjax.default_system(), [(v, v)], criterion="auto")
     with pytest.raises(ValueError, match=r"`criterion` must be one of \('auto', 'prediction', 'simulation'\)"):
         hbjax.fit((v, v), na=1, nb=1, m=2, key=jax.random.key(0), criterion="equation")
+
+
+def _output_noise_record(seed, n):
+    """The default system (``A = 1 - 1.2 q^-1 + 0.5 q^-2``: sensor noise ``w`` reaches its
+    one-step errors as ``A w``, lag-one correlation -0.67), random steps, noise 3 % of the
+    output's range at the output."""
+    rng = np.random.default_rng(seed)
+    system = hbjax.default_system()
+    v = np.repeat(rng.uniform(-6, 6, n), rng.integers(1, 20, n))[:n]
+    y_clean = np.asarray(hbjax.simulate(system, v))
+    s = dict(na=2, nb=2)
+    return s, v, y_clean, y_clean + 0.03 * np.ptp(y_clean) * rng.standard_normal(n)
+
+
+def test_auto_tests_whiteness_without_the_records_too_short_for_it():
+    # A 20-sample record beside a long one made the pooled p-value NaN, read as white.
+    s, v, _, y = _output_noise_record(11, 1500)
+    fit = dict(na=s["na"], nb=s["nb"], m=3, key=jax.random.key(0), progress=False,
+               throw=False)
+    alone = hbjax.fit((v, y), **fit)
+    both = hbjax.fit([(v, y), (v[:20], y[:20])], **fit)
+    assert alone.criterion == "simulation", alone.criterion_choice
+    assert both.criterion == "simulation", both.criterion_choice
+    assert np.isfinite(float(both.prediction_whiteness_p))
+    short = hbjax.fit((v[:40], y[:40]), na=1, nb=1, m=2, key=jax.random.key(0),
+                      progress=False, throw=False)
+    if short.result == hbjax.RESULTS.successful:
+        assert short.criterion_choice.startswith("auto: prediction (no record long enough")
+
+
+def test_auto_does_not_read_rounding_as_coloured_errors():
+    s, v, y_clean, _ = _output_noise_record(12, 800)
+    res = hbjax.fit((v, y_clean), na=s["na"], nb=s["nb"], m=3, key=jax.random.key(0),
+                    progress=False)
+    assert res.criterion == "prediction"
+    assert res.criterion_choice == ("auto: prediction (its one-step errors are rounding: "
+                                    "noise-free records)")
+
+
+def test_auto_keeps_the_prediction_success_when_the_adopted_refinement_is_refused(monkeypatch):
+    # fit judges the output-error refinement as it judges its best start; where that
+    # refuses it, the prediction criterion's success is reported, saying why.
+    import hbjax._identify.fit as fit_module
+
+    judge = fit_module.judge_free_run
+
+    def refuse_output_error(res, recordings):
+        res = judge(res, recordings)
+        if res.criterion == "simulation":
+            return dataclasses.replace(res, result=hbjax.RESULTS.free_run_undetermined)
+        return res
+
+    monkeypatch.setattr(fit_module, "judge_free_run", refuse_output_error)
+    s, v, _, y = _output_noise_record(11, 1500)
+    res = hbjax.fit((v, y), na=s["na"], nb=s["nb"], m=3, key=jax.random.key(0),
+                    progress=False)
+    assert res.result == hbjax.RESULTS.successful and res.criterion == "prediction"
+    assert res.criterion_choice.startswith("auto: prediction kept; its one-step errors are "
+                                           "coloured, but the output-error refinement")

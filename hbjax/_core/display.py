@@ -115,6 +115,7 @@ def model_html(model) -> str:
 FIGURES = (
     ("criterion", "criterion"),
     ("criterion_choice", "criterion chosen"),
+    ("prediction_whiteness_p", "whiteness p (prediction optimum)"),
     ("gauge", "gauge"),
     ("noise_std", "noise std (criterion's residuals)"),  # equation or output error
     ("sim_fit_pooled", "free-run fit on estimation data (%)"),
@@ -160,8 +161,9 @@ def result_figures(result) -> dict:
     for path, label in FIGURES:
         value = _lookup(result, path)
         c = concrete(value)
-        if value is None or (isinstance(value, str) and not value) or (c is not None and c.dtype.kind == "f" and c.size
-                             and np.all(np.isnan(c))):
+        empty = isinstance(value, str) and not value
+        if value is None or empty or (c is not None and c.dtype.kind == "f" and c.size
+                                      and np.all(np.isnan(c))):
             continue  # absent, or not computed (NaN: e.g. residual tests of a good fit)
         if path == "sim_fit" and c is not None and np.any(np.isnan(c)):
             value = ", ".join(record_fit_text(f) for f in np.atleast_1d(c))

@@ -11,8 +11,8 @@ from .._core.initial import InitialState, estimate_initial_state, injection, uns
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent_unchecked
-from .._misc import no_spread
-from .._misc import as_float_array, check_magnitude, float_dtype, is_traced, lagged, same_length
+from .._misc import (as_float_array, check_magnitude, float_dtype, is_traced, lagged, no_spread,
+                     same_length)
 from .recordings import as_input_output
 from .refine_result import AbstractRefinement
 from .stable import INITIAL_STATES, check_initial_state, start_response  # noqa: F401

@@ -83,12 +83,17 @@ class FitResult(AbstractRefinement):
       often end elsewhere (0.78 on a staircase record of the default system, 32 starts).
     - `best_index`: which start won.
     - `criterion`: the criterion of the reported model; `criterion_choice`: with the
-      default ``criterion="auto"``, how it was chosen (the whiteness p-value of the
-      prediction optimum's one-step errors, :mod:`hbjax._identify.fit_criterion`); with
-      ``criterion="prediction"`` asked for, a note where those errors are coloured (the
-      criterion's noise assumption fails), else empty; where the output-error refinement
-      was adopted, the starts' fields (`starts_costs` ...
-      `best_index`) describe the prediction criterion's starts it began from.
+      default ``criterion="auto"``, how it was chosen (:mod:`hbjax._identify.fit_criterion`;
+      empty where the prediction fit did not succeed, and under ``jax.jit``); with
+      ``criterion="prediction"`` asked for, a note where the one-step errors are coloured
+      (the criterion's noise assumption fails), else empty.
+      `prediction_whiteness_p`: the Ljung-Box p-value of the prediction optimum's
+      one-step errors the choice was made on (NaN where not tested; ``None`` where not
+      computed). Where the output-error refinement was adopted, `model`, `result`,
+      `stats` (its `initial_cost` is the output-error cost at the prediction optimum) and
+      the covariance fields are the refinement's, while the starts' fields
+      (`starts_costs` ... `best_index`, `spread`, `hit_rate`) describe the prediction
+      criterion's starts it began from.
     """
 
     starts_costs: Float[Array, " starts"]
@@ -102,6 +107,8 @@ class FitResult(AbstractRefinement):
     gauge: str = eqx.field(static=True, default="static_gain")
     initial_state: str = eqx.field(static=True, default="zero")
     criterion_choice: str = eqx.field(static=True, default="")
+    # set by fit_criterion.choose_criterion on an eager prediction-criterion success
+    prediction_whiteness_p: Float[Array, ""] | None = None
     # set by the final judgement (undetermined.judge_branches), which every fit runs
     interpolation_ratio: Float[Array, ""] | None = None
     # set by free_run.judge_free_run on an eager fit's success
@@ -465,7 +472,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
                                    refine_output_error=lambda model: refine(
                 model, recs, criterion=SIMULATION, max_steps=max_steps,
                 min_sim_fit=options["min_sim_fit"], initial_state=initial_state,
-                throw=False), adopt=lambda res, refined: _adopt(
+                restarts=0, throw=False), adopt=lambda res, refined: _adopt(
                     res, refined, recs, loop_tolerance))
         jax.block_until_ready(res)
         bar.update(starts)

@@ -11,7 +11,8 @@ less efficient under equation noise. The two are told apart by the whiteness tes
 prediction optimum's one-step errors (Ljung-Box over 25 lags, all records pooled, as
 :func:`hbjax.resid`): white, the equation-error model holds and its result stands; coloured
 at :data:`COLOURED_P`, the optimum is refined once more with the simulation criterion
-(:func:`hbjax.refine`, started from it) and that result is reported where it is a success.
+(:func:`hbjax.refine`, started from it, no restarts) and that result is reported where it
+is a success after `fit`'s judgements of its best start.
 
 Measured (10 random paper-class systems of ``tests/generators/paper_class.py`` at noise
 1, 3 and 10 % of the output's range, validation on a fresh noise-free record): with the
@@ -28,63 +29,88 @@ import dataclasses
 import jax.numpy as jnp
 
 from .._results import RESULTS
-from .adequacy import whiteness_p
+from .._misc import lag_sum
+from .adequacy import LAGS, _rounding, whiteness_p
 from .compare import play_state_for_prediction
-from .criteria import PREDICTION, SIMULATION
+from .criteria import PREDICTION
 
 #: ``fit``'s default criterion: chosen from the records (this module).
 AUTO = "auto"
 #: Ljung-Box p-value of the prediction optimum's one-step errors below which the
 #: equation-error model is rejected and the output-error criterion is used.
 COLOURED_P = 1e-3
+#: Fewest one-step errors a record needs to enter the test (twice its lags, as
+#: :func:`hbjax.resid` cuts them): a shorter record's autocorrelations are 0 / 0.
+MIN_ERRORS = 2 * LAGS + 1
+
+#: The statements `criterion_choice` makes (a static field: a fixed vocabulary, the
+#: p-value is `prediction_whiteness_p`).
+WHITE = "auto: prediction (its one-step errors are white)"
+NOISE_FREE = "auto: prediction (its one-step errors are rounding: noise-free records)"
+TOO_SHORT = "auto: prediction (no record long enough for the whiteness test)"
+ADOPTED = ("auto: simulation (output error), refined from the prediction optimum, whose "
+           "one-step errors are coloured: noise at the output, or dynamics the model lacks")
+KEPT = ("auto: prediction kept; its one-step errors are coloured, but the output-error "
+        "refinement from it was not a success ({})")
+AS_ASKED = ("prediction, as asked; its one-step errors are coloured: with noise at the "
+            "sensor this criterion is biased (criterion='auto' or 'simulation' fits the free "
+            "run), or the model lacks dynamics")
 
 
-def prediction_whiteness(model, recordings, initial_state: str) -> float:
+def prediction_whiteness(model, recordings, initial_state: str) -> tuple[float, str]:
     """Ljung-Box p-value (records pooled) of `model`'s one-step prediction errors, each
     record's play operator started as :func:`hbjax.resid` starts it (with
     ``"estimate"``: the state in the band at the first input whose predictions fit best;
     a record that starts at rest away from zero otherwise keeps a wrong internal signal
-    until its input leaves the band, and the errors of a true model look coloured)."""
-    recordings = [tuple(jnp.asarray(a) for a in rec) for rec in recordings]
+    until its input leaves the band, and the errors of a true model look coloured).
+    Returns ``(p, note)``: ``note`` is ``None`` where the test ran; else ``p`` is NaN and
+    the note says why not: no record holds :data:`MIN_ERRORS` errors (shorter ones are
+    left out), or the errors are rounding (:func:`_rounding`: a noise-free record's
+    one-step errors are "coloured" by the arithmetic alone)."""
     skip = max(model.arx.na, model.arx.nb)
-    sources = []
+    recordings = [tuple(jnp.asarray(a) for a in rec) for rec in recordings]
+    recordings = [(v, y) for v, y in recordings if v.shape[0] - skip >= MIN_ERRORS]
+    if not recordings:
+        return float("nan"), TOO_SHORT
+    sources, ssr, spread = [], 0.0, 0.0
     for v, y in recordings:
         u0 = (play_state_for_prediction(model, model, v, y, skip)
               if initial_state == "estimate" else 0.0)
-        sources.append(model.free_run(v, jnp.zeros_like(v), u0)[0])
-    return float(whiteness_p(model, recordings, sources)[0])
+        u = model.free_run(v, jnp.zeros_like(v), u0)[0]
+        sources.append(u)
+        e = (y + lag_sum(model.arx.a, y) - lag_sum(model.arx.b, u))[skip:]
+        ssr += float(jnp.sum(e**2))
+        spread += float(jnp.sum((y[skip:] - jnp.mean(y[skip:])) ** 2))
+    if ssr <= float(_rounding(spread, recordings[0][1].dtype)):
+        return float("nan"), NOISE_FREE
+    return float(whiteness_p(model, recordings, sources)[0]), None
 
 
 def choose_criterion(res, recordings, *, initial_state, refine_output_error, adopt,
                      auto: bool = True):
-    """`res` (the prediction criterion's :class:`hbjax.FitResult`, concrete) as ``"auto"``
-    reports it: unchanged, with the whiteness it was judged on, where its one-step errors
-    are white at :data:`COLOURED_P` (or it is not a success); otherwise the output-error
-    refinement from its model, ``refine_output_error(model)`` (a
-    :class:`hbjax.RefineResult`), made a fit result by ``adopt(res, refined)`` where that
-    refinement succeeds. With ``auto=False`` (the prediction criterion asked for) the
-    result is kept and, where its errors are coloured, `criterion_choice` says so."""
+    """`res` (the prediction criterion's :class:`hbjax.FitResult`, concrete) as `fit`
+    reports it, with `prediction_whiteness_p` and `criterion_choice` set.
+
+    With ``auto`` (the default criterion): unchanged where its one-step errors are white
+    at :data:`COLOURED_P` (or it is not a success); otherwise the output-error refinement
+    from its model, ``refine_output_error(model)`` (a :class:`hbjax.RefineResult`), made
+    a fit result and judged by ``adopt(res, refined)``, where that is a success; the
+    prediction result, saying why, where it is not. With ``auto=False`` (the prediction
+    criterion asked for) the result is kept and `criterion_choice` notes coloured
+    errors."""
     if res.criterion != PREDICTION or res.result != RESULTS.successful:
         return res
-    p = prediction_whiteness(res.model, recordings, initial_state)
+    p, untested = prediction_whiteness(res.model, recordings, initial_state)
+    res = dataclasses.replace(res, prediction_whiteness_p=jnp.asarray(p))
+    coloured = p < COLOURED_P  # (NaN: not tested, see the note)
     if not auto:
-        return res if not p < COLOURED_P else dataclasses.replace(
-            res, criterion_choice=(
-                f"prediction, as asked; its one-step errors are coloured (p = {p:.2g}): "
-                f"with noise at the sensor this criterion is biased (criterion='auto' or "
-                f"'simulation' fits the free run), or the model lacks dynamics"))
-    if not p < COLOURED_P:
-        return dataclasses.replace(
-            res, criterion_choice=f"auto: prediction (one-step errors white, p = {p:.2g})")
+        return dataclasses.replace(res, criterion_choice=AS_ASKED) if coloured else res
+    if not coloured:
+        return dataclasses.replace(res, criterion_choice=untested or WHITE)
     refined = refine_output_error(res.model)
     if refined.result != RESULTS.successful:
-        return dataclasses.replace(
-            res, criterion_choice=(
-                f"auto: prediction kept; its one-step errors are coloured (p = {p:.2g}), "
-                f"but the output-error refinement from it failed ({refined.message})"))
+        return dataclasses.replace(res, criterion_choice=KEPT.format(refined.message))
     out = adopt(res, refined)
-    return dataclasses.replace(
-        out, criterion=SIMULATION, criterion_choice=(
-            f"auto: simulation (output error), refined from the prediction optimum, whose "
-            f"one-step errors are coloured (p = {p:.2g}): noise at the output, or dynamics "
-            f"the model lacks"))
+    if out.result != RESULTS.successful:
+        return dataclasses.replace(res, criterion_choice=KEPT.format(out.message))
+    return dataclasses.replace(out, criterion_choice=ADOPTED)

@@ -13,9 +13,8 @@ from .._core.model import Hammerstein
 from .._core.progress import check_progress, progress_bar
 from .._core.simulate import predict, simulate
 from .._results import RESULTS
-from .._misc import positive_int
+from .._misc import no_spread, positive_int
 from .compare import compare, hammerstein_state, play_state_for_prediction
-from .._misc import no_spread
 from .fit import fit
 from .recordings import as_recordings, check_branch_degree, check_criterion
 from .stable import check_initial_state
