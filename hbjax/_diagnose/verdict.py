@@ -10,9 +10,10 @@
 - ``"unexplained"``: no finding, but a residual test rejects; or only noise-model findings,
   whose own (whitened) one-step errors the input still predicts
   (``tests["independence_after_noise_model"]`` rejects: a noise model cannot explain an
-  effect of the input). The structure is real, the library has no mechanism for it; the report names the rejecting tests and the regime
-  variable (output level, input level, input rate, motion direction, time) whose bins
-  explain most of the nominal simulation residual: where to look.
+  effect of the input). The structure is real, the library has no mechanism for it; the
+  report names the rejecting tests and the regime variable (output level, input level,
+  input rate, motion direction, time) whose bins explain most of the nominal simulation
+  residual: where to look.
 
 A candidate whose fit did not produce finite numbers (parameters, criterion, or free run)
 is a **failed** candidate, listed with the reason; it is never reported or ranked.

@@ -29,8 +29,7 @@ import dataclasses
 import jax.numpy as jnp
 
 from .._results import RESULTS
-from .._misc import lag_sum
-from .adequacy import LAGS, _rounding, whiteness_p
+from .adequacy import LAGS, _one_step, _rounding, whiteness_p
 from .compare import play_state_for_prediction
 from .criteria import PREDICTION
 
@@ -78,7 +77,7 @@ def prediction_whiteness(model, recordings, initial_state: str) -> tuple[float, 
               if initial_state == "estimate" else 0.0)
         u = model.free_run(v, jnp.zeros_like(v), u0)[0]
         sources.append(u)
-        e = (y + lag_sum(model.arx.a, y) - lag_sum(model.arx.b, u))[skip:]
+        e, _, _ = _one_step(model, v, y, u, None)  # zero over the first `skip` samples
         ssr += float(jnp.sum(e**2))
         spread += float(jnp.sum((y[skip:] - jnp.mean(y[skip:])) ** 2))
     if ssr <= float(_rounding(spread, recordings[0][1].dtype)):
