@@ -25,7 +25,7 @@ from .._misc import check_bool, check_key, is_traced, no_spread, positive_int
 from .._core.precision import require_x64
 from .centring import at_better_start, in_recorded_coordinates, less_centres, record_centres
 from .criteria import PREDICTION, SIMULATION, data_scale
-from .fit_criterion import AUTO, choose_criterion
+from .fit_criterion import AUTO, choose_criterion, fall_back, worth_output_error_search
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
     arx_given_backlash, canonical_labels, closing_band, closing_count, closing_positions,
@@ -84,7 +84,8 @@ class FitResult(AbstractRefinement):
     - `best_index`: which start won.
     - `criterion`: the criterion of the reported model; `criterion_choice`: with the
       default ``criterion="auto"``, how it was chosen (:mod:`hbjax._identify.fit_criterion`;
-      empty where the prediction fit did not succeed, and under ``jax.jit``); with
+      where the prediction fit did not succeed, whether the output-error criterion's own
+      search did; empty under ``jax.jit``); with
       ``criterion="prediction"`` asked for, a note where the one-step errors are coloured
       (the criterion's noise assumption fails), else empty.
       `prediction_whiteness_p`: the Ljung-Box p-value of the prediction optimum's
@@ -393,8 +394,11 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       keeps that result where its one-step errors pass the whiteness test (p >= 1e-3,
       the equation-error model of eq. (10) holds); where they are coloured (noise at the
       sensor, or dynamics the model lacks) it refines the optimum with the simulation
-      criterion, consistent under either noise, and reports that where it succeeds
-      (`criterion_choice` says which and why; :mod:`hbjax._identify.fit_criterion`).
+      criterion, consistent under either noise, and reports that where it succeeds.
+      Where no prediction start succeeds (for another reason than records that do not
+      determine the model), the starts are searched again with the simulation criterion
+      and its success is reported (`criterion_choice` says which and why;
+      :mod:`hbjax._identify.fit_criterion`).
       Under ``jax.jit`` ``"auto"`` is the prediction criterion.
     - `max_steps`: Levenberg–Marquardt steps per start.
     - `min_sim_fit`: floor (%) of the pooled free-run fit on the estimation data below
@@ -424,6 +428,22 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
 
     **Returns:** a :class:`FitResult`.
     """
+    release_compiled_programs()  # (here: its warning names the caller's line)
+    return fit_unnoted(recordings, na=na, nb=nb, m=m, key=key, starts=starts,
+                       criterion=criterion, max_steps=max_steps, min_sim_fit=min_sim_fit,
+                       initial_state=initial_state, loop_tolerance=loop_tolerance,
+                       throw=throw, progress=progress, note=True)
+
+
+def fit_unnoted(recordings, *, na, nb, m, key, starts=32, criterion=AUTO, max_steps=256,
+                min_sim_fit=SIM_FIT_FLOOR, initial_state="estimate",
+                loop_tolerance=LOOP_TOLERANCE, throw=True, progress=True,
+                note=False) -> FitResult:
+    """:func:`fit`, for the package's own multi-start searches (:func:`hbjax.refine`'s
+    restarts, :func:`hbjax.select_structure`'s rows): with ``note=False`` an explicit
+    prediction criterion skips the whiteness test whose only use is `criterion_choice`'s
+    note, which those callers never show (it costs a compilation on a first call, 4 s,
+    and 0.2 s warm); ``"auto"`` still runs it, since it chooses the criterion."""
     require_x64("fit")
     ensure_compilation_cache()
     release_compiled_programs()
@@ -462,12 +482,19 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
     traced = any(is_traced(x) for x in jax.tree_util.tree_leaves((recs, key)))
     centres = record_centres(recs, initial_state)
     # The starts run inside one compiled program: the bar shows the elapsed time.
-    with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
+
+    def search(options):
         res = _solve(recs, key, centres, traced, loop_tolerance, options)
         if initial_state == "estimate" and not traced:
             res = at_better_start(lambda c: _solve(recs, key, c, traced, loop_tolerance,
                                                    options), recs, centres, res)
-        if options["criterion"] == PREDICTION and not traced:
+        return res
+
+    with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
+        res = search(options)
+        if auto and not traced and worth_output_error_search(res):
+            res = fall_back(res, search(dict(options, criterion=SIMULATION)))
+        if options["criterion"] == PREDICTION and not traced and (auto or note):
             res = choose_criterion(res, recs, initial_state=initial_state, auto=auto,
                                    refine_output_error=lambda model: refine(
                 model, recs, criterion=SIMULATION, max_steps=max_steps,
@@ -495,8 +522,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
         raise RefinementError(
             f"fit: no start succeeded; the best: {res.message.rstrip('.')}. Try more "
             "`starts` or `max_steps`, other orders"
-            + (", or criterion='simulation'." if options["criterion"] == PREDICTION
-               else ".")
+            + (", or criterion='simulation'." if criterion == PREDICTION else ".")
         )
     return res
 

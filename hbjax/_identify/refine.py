@@ -293,16 +293,17 @@ def _restarted(res, records, recs, restarts, options):
     """:func:`refine`'s result, or the refinement of a multi-start fit's optimum where that
     is a success with a lower cost (see `restarts` in :func:`refine`)."""
     # fit refines through this module: imported here, where the two meet.
-    from .fit import fit, normalise_static_gain
+    from .fit import fit_unnoted, normalise_static_gain
     from .giri import normalise
 
     na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
     if all(no_spread(np.asarray(y)) for _, y in records):
         return res  # (fit refuses outputs that never move: nothing for its starts to find)
-    alternative = fit(records, na=na, nb=nb, m=m, key=jax.random.PRNGKey(0), starts=restarts,
-                      criterion=options["criterion"], initial_state=options["initial_state"],
-                      min_sim_fit=options["min_sim_fit"], loop_tolerance=float("inf"),
-                      throw=False, progress=False)
+    alternative = fit_unnoted(
+        records, na=na, nb=nb, m=m, key=jax.random.PRNGKey(0), starts=restarts,
+        criterion=options["criterion"], initial_state=options["initial_state"],
+        min_sim_fit=options["min_sim_fit"], loop_tolerance=float("inf"), throw=False,
+        progress=False)
     # (fit's own judgements of undetermined branches and free runs are not refine's:
     # refine reports the flags and the covariance)
     if int(code(alternative.result)) not in (int(code(RESULTS.successful)),

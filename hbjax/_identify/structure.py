@@ -1,7 +1,6 @@
 """Structure selection: the orders ``(na, nb, m)`` by information criteria and validation
 fit, one :func:`hbjax.fit` per candidate (as MATLAB's ``arxstruc``/``selstruc``)."""
 
-import inspect
 import itertools
 import math
 
@@ -15,7 +14,7 @@ from .._core.simulate import predict, simulate
 from .._results import RESULTS
 from .._misc import no_spread, positive_int
 from .compare import compare, hammerstein_state, play_state_for_prediction
-from .fit import fit
+from .fit import fit_unnoted
 from .recordings import as_recordings, check_branch_degree, check_criterion
 from .stable import check_initial_state
 
@@ -147,10 +146,10 @@ def _validation_fit(model, validation, initial_state):
         return -np.inf
 
 
-def _score(recs, val, a, b, c, key, starts, criterion, initial_state, skip, fit_kw):
+def _score(recs, val, a, b, c, key, starts, criterion, initial_state, skip):
     """One row of the table: fit the orders ``(a, b, c)`` and score them."""
-    res = fit(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
-              initial_state=initial_state, throw=False, **fit_kw)
+    res = fit_unnoted(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
+                      initial_state=initial_state, throw=False, progress=False)
     ok = bool(res.result == RESULTS.successful)
     # (a fit whose branches are known at the levels only reached its optimum: its loss
     # still compares the orders; measured in tests/test_validation_tools.py)
@@ -218,7 +217,6 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
         raise ValueError(f"`rank_by` must be one of {RANKINGS}, got {rank_by!r}.")
     if rank_by == "validation" and val is None:
         raise ValueError("`rank_by='validation'` needs `validation` records.")
-    fit_kw = {"progress": False} if "progress" in inspect.signature(fit).parameters else {}
     grid = list(itertools.product(na_list, nb_list, m_list))
     skip = max(na_list[-1], nb_list[-1]) if initial_state == "estimate" else 0
     for k, (_, y_val) in enumerate(val if initial_state == "estimate" and val else ()):
@@ -235,7 +233,7 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     with progress_bar(progress, total=len(grid), desc="select_structure") as bar:
         for a, b, c in grid:
             rows.append(_score(recs, val, a, b, c, key, starts, criterion, initial_state,
-                               skip, fit_kw))
+                               skip))
             bar.update(1)
     column = {"bic": 3, "aic": 4}
     if rank_by == "validation":
