@@ -25,7 +25,9 @@ from .._misc import check_bool, check_key, is_traced, no_spread, positive_int
 from .._core.precision import require_x64
 from .centring import at_better_start, in_recorded_coordinates, less_centres, record_centres
 from .criteria import PREDICTION, SIMULATION, data_scale
-from .fit_criterion import AUTO, choose_criterion, fall_back, worth_output_error_search
+from .fit_criterion import (
+    AUTO, choose_criterion, search_after_failure, worth_output_error_search,
+)
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
     arx_given_backlash, canonical_labels, closing_band, closing_count, closing_positions,
@@ -85,7 +87,7 @@ class FitResult(AbstractRefinement):
     - `criterion`: the criterion of the reported model; `criterion_choice`: with the
       default ``criterion="auto"``, how it was chosen (:mod:`hbjax._identify.fit_criterion`;
       where the prediction fit did not succeed, whether the output-error criterion's own
-      search did; empty under ``jax.jit``); with
+      search ran and succeeded; empty under ``jax.jit``); with
       ``criterion="prediction"`` asked for, a note where the one-step errors are coloured
       (the criterion's noise assumption fails), else empty.
       `prediction_whiteness_p`: the Ljung-Box p-value of the prediction optimum's
@@ -394,10 +396,13 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       keeps that result where its one-step errors pass the whiteness test (p >= 1e-3,
       the equation-error model of eq. (10) holds); where they are coloured (noise at the
       sensor, or dynamics the model lacks) it refines the optimum with the simulation
-      criterion, consistent under either noise, and reports that where it succeeds.
-      Where no prediction start succeeds (for another reason than records that do not
-      determine the model), the starts are searched again with the simulation criterion
-      and its success is reported (`criterion_choice` says which and why;
+      criterion, consistent under either noise, and reports that where it succeeds; where
+      they are white, that refinement is reported where its own free-run errors are white
+      and its one-step errors coloured (sensor noise, whose bias can whiten the prediction
+      optimum's errors). Where no prediction start succeeds (for another reason than
+      inputs that do not determine the branches), the starts are searched again with the
+      simulation criterion, whose success is reported where the noise is not the
+      equation's by those readings (`criterion_choice` says which and why;
       :mod:`hbjax._identify.fit_criterion`).
       Under ``jax.jit`` ``"auto"`` is the prediction criterion.
     - `max_steps`: Levenberg–Marquardt steps per start.
@@ -493,7 +498,9 @@ def fit_unnoted(recordings, *, na, nb, m, key, starts=32, criterion=AUTO, max_st
     with progress_bar(progress, total=starts, desc="fit", unit="start", live=True) as bar:
         res = search(options)
         if auto and not traced and worth_output_error_search(res):
-            res = fall_back(res, search(dict(options, criterion=SIMULATION)))
+            res = search_after_failure(
+                res, recs, initial_state=initial_state,
+                search_output_error=lambda: search(dict(options, criterion=SIMULATION)))
         if options["criterion"] == PREDICTION and not traced and (auto or note):
             res = choose_criterion(res, recs, initial_state=initial_state, auto=auto,
                                    refine_output_error=lambda model: refine(
