@@ -195,6 +195,24 @@ def test_auto_reads_sensor_noise_that_the_biased_prediction_optimum_whitens():
     assert _validation_fit(auto.model, *val) > _validation_fit(pred.model, *val) + 3.0
 
 
+def test_auto_refuses_a_biased_prediction_success_where_the_consistent_estimate_is_refused():
+    # 20 % sensor noise, the true model's own free-run fit on the record 1.6 %: the
+    # prediction optimum "succeeded" at 0.8 % and validated at -3.6 %; the output-error
+    # refinement reads the sensor noise, and its free run is not determined by the record.
+    s, rec, val = _benchmark_case(5, 5, 0.2, "output")
+    kw = dict(na=s["na"], nb=s["nb"], m=3, key=jax.random.key(5), progress=False,
+              throw=False)
+    pred = hbjax.fit(rec, criterion="prediction", **kw)
+    assert pred.result == hbjax.RESULTS.successful and _validation_fit(pred.model, *val) < 0
+    auto = hbjax.fit(rec, **kw)
+    assert auto.result == hbjax.RESULTS.free_run_undetermined, auto.message
+    assert auto.criterion == "simulation"
+    assert "the refinement is refused (see the result), and so is the biased optimum" in (
+        auto.criterion_choice)
+    with pytest.raises(hbjax.RefinementError, match="free run"):
+        hbjax.fit(rec, **dict(kw, throw=True))
+
+
 def test_auto_searches_with_the_output_error_criterion_where_prediction_finds_no_success():
     s, rec, val = _benchmark_case(5, 0, 0.2, "output")  # na = 3, 20 % sensor noise
     kw = dict(na=s["na"], nb=s["nb"], m=3, key=jax.random.key(0), progress=False,
