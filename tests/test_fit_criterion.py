@@ -129,7 +129,8 @@ def test_auto_keeps_the_prediction_success_when_the_adopted_refinement_is_refuse
                     progress=False)
     assert res.result == hbjax.RESULTS.successful and res.criterion == "prediction"
     assert res.criterion_choice.startswith("auto: prediction kept; its one-step errors are "
-                                           "coloured, but the output-error refinement")
+                                           "coloured, but neither the output-error "
+                                           "refinement")
 
 
 def test_the_package_own_searches_skip_the_whiteness_note_they_never_show(monkeypatch):
@@ -189,28 +190,34 @@ def test_auto_reads_sensor_noise_that_the_biased_prediction_optimum_whitens():
     pred = hbjax.fit(rec, criterion="prediction", **kw)
     assert float(pred.prediction_whiteness_p) >= 1e-3  # white: the first reading misses it
     assert auto.criterion == "simulation", auto.criterion_choice
-    assert auto.criterion_choice.startswith("auto: simulation (output error), refined from "
-                                            "the prediction optimum: its free-run errors "
-                                            "are white")
+    assert auto.criterion_choice.startswith("auto: simulation (output error)")
+    assert "the output-error optimum's free-run errors are white and its one-step errors " \
+        "coloured" in auto.criterion_choice
     assert _validation_fit(auto.model, *val) > _validation_fit(pred.model, *val) + 3.0
 
 
-def test_auto_refuses_a_biased_prediction_success_where_the_consistent_estimate_is_refused():
+def test_auto_never_keeps_a_biased_prediction_success_once_the_noise_reads_as_the_sensors():
     # 20 % sensor noise, the true model's own free-run fit on the record 1.6 %: the
     # prediction optimum "succeeded" at 0.8 % and validated at -3.6 %; the output-error
-    # refinement reads the sensor noise, and its free run is not determined by the record.
+    # refinement reads the sensor noise. Its free run is barely determined by the record
+    # (a borderline judgement: refused under the package's compiler settings, a success
+    # validating at 55 % or so under the test suite's), so either answer is honest, but
+    # not the biased optimum.
     s, rec, val = _benchmark_case(5, 5, 0.2, "output")
     kw = dict(na=s["na"], nb=s["nb"], m=3, key=jax.random.key(5), progress=False,
               throw=False)
     pred = hbjax.fit(rec, criterion="prediction", **kw)
     assert pred.result == hbjax.RESULTS.successful and _validation_fit(pred.model, *val) < 0
     auto = hbjax.fit(rec, **kw)
-    assert auto.result == hbjax.RESULTS.free_run_undetermined, auto.message
-    assert auto.criterion == "simulation"
-    assert "the refinement is refused (see the result), and so is the biased optimum" in (
-        auto.criterion_choice)
-    with pytest.raises(hbjax.RefinementError, match="free run"):
-        hbjax.fit(rec, **dict(kw, throw=True))
+    assert auto.criterion == "simulation", auto.criterion_choice
+    if auto.result == hbjax.RESULTS.successful:
+        assert _validation_fit(auto.model, *val) > 40.0
+        assert "noise at the sensor" in auto.criterion_choice
+    else:
+        assert "neither the refinement nor the output-error search succeeded" in (
+            auto.criterion_choice)
+        with pytest.raises(hbjax.RefinementError):
+            hbjax.fit(rec, **dict(kw, throw=True))
 
 
 def test_auto_searches_with_the_output_error_criterion_where_prediction_finds_no_success():

@@ -396,10 +396,10 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       keeps that result where its one-step errors pass the whiteness test (p >= 1e-3,
       the equation-error model of eq. (10) holds); where they are coloured (noise at the
       sensor, or dynamics the model lacks) it refines the optimum with the simulation
-      criterion, consistent under either noise, and reports that where it succeeds; where
-      they are white, that refinement is reported where its own free-run errors are white
-      and its one-step errors coloured (sensor noise, whose bias can whiten the prediction
-      optimum's errors). Where no prediction start succeeds (for another reason than
+      criterion, consistent under either noise, searches the starts with it too, and
+      reports the success with the higher free-run fit; where they are white, it does so
+      where that refinement's own free-run errors are white and its one-step errors
+      coloured (sensor noise, whose bias can whiten the prediction optimum's errors). Where no prediction start succeeds (for another reason than
       inputs that do not determine the branches), the starts are searched again with the
       simulation criterion, whose success is reported where the noise is not the
       equation's by those readings (`criterion_choice` says which and why;
@@ -507,7 +507,8 @@ def fit_unnoted(recordings, *, na, nb, m, key, starts=32, criterion=AUTO, max_st
                 model, recs, criterion=SIMULATION, max_steps=max_steps,
                 min_sim_fit=options["min_sim_fit"], initial_state=initial_state,
                 restarts=0, throw=False), adopt=lambda res, refined: _adopt(
-                    res, refined, recs, loop_tolerance))
+                    res, refined, recs, loop_tolerance),
+                search_output_error=lambda: search(dict(options, criterion=SIMULATION)))
         jax.block_until_ready(res)
         bar.update(starts)
     if throw and is_traced(res.result._value):
