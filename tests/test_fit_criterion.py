@@ -263,3 +263,18 @@ def test_auto_keeps_a_prediction_failure_whose_one_step_errors_are_white():
     assert float(res.prediction_whiteness_p) >= 1e-3, res.criterion_choice
     assert res.criterion_choice.startswith("auto: prediction; no start succeeded, and the "
                                            "noise reads as the equation's")
+
+
+def test_select_structure_can_choose_its_criterion_as_fit_does():
+    # Sensor noise: "auto" is chosen once, on the largest structure, and every row is
+    # fitted and scored with it (one criterion's losses in one table).
+    s, v, _, y = _output_noise_record(11, 1500)
+    sel = hbjax.select_structure((v, y), na=[1, 2, 3], nb=2, m=3, key=jax.random.key(0),
+                                 criterion="auto", progress=False)
+    assert sel.criterion == "simulation"
+    assert sel.criterion_choice.startswith("auto: simulation"), sel.criterion_choice
+    assert "chosen on the largest structure" in str(sel.summary())
+    assert sel.best == (2, 2, 3)
+    with pytest.raises(ValueError, match=r"`criterion` must be one of \('auto', 'prediction', 'simulation'\)"):
+        hbjax.select_structure((v, y), na=2, nb=2, m=3, key=jax.random.key(0),
+                               criterion="output", progress=False)
