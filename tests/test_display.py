@@ -107,6 +107,21 @@ def test_unidentified_parameters_are_flagged(refined):
     assert "unidentified" not in other
 
 
+def test_a_parameter_the_normalisation_sets_reads_fixed_not_std_err_0():
+    # nb = 1 under B(1) = 1: b1 = 1 exactly, its standard error 0; the table must not
+    # print it as a perfect estimate.
+    system = hbjax.Hammerstein(hbjax.default_system().backlash, hbjax.ARX(a=[-0.6], b=[0.4]))
+    v = np.asarray(jax.random.uniform(jax.random.key(2), (800,), minval=-6.0, maxval=6.0))
+    y = np.asarray(hbjax.simulate(system, v, 0.01 * jax.random.normal(jax.random.key(3), (800,))))
+    res = hbjax.fit((v, y), na=1, nb=1, m=3, key=jax.random.key(0), progress=False,
+                    throw=False)
+    assert float(res.std[1]) == 0.0  # b1: set, not estimated
+    line = [ln for ln in str(res.summary()).splitlines() if ln.startswith("b1 ")][0]
+    assert "fixed" in line and "set by the normalisation" in line, line
+    other = [ln for ln in str(res.summary()).splitlines() if ln.startswith("a1 ")][0]
+    assert "fixed" not in other and "[" in other
+
+
 def test_batched_result_codes_are_counted(refined):
     codes = jnp.asarray([refined.result._value] * 3)
     batched = eqx.tree_at(lambda r: r.result._value, refined, codes)

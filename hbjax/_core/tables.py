@@ -51,7 +51,8 @@ def parameter_table(names, estimate, std=None, *, unidentified=None, extra=None,
                     title: str = "", header: str = "estimate") -> Table:
     """Estimate, standard error and 95% interval ``estimate +- 1.96 std`` per parameter,
     with a flag for the parameters named in `unidentified` (which the data do not
-    determine: their interval means nothing). `extra` adds columns ``{header: values}``.
+    determine: their interval means nothing); a standard error of exactly 0 reads
+    "fixed" (a normalisation sets that parameter). `extra` adds columns ``{header: values}``.
     Traced values give a one-row table saying so; a batch (leading axes) gives the mean
     and spread of each parameter over the batch."""
     est, sd = concrete(estimate), None if std is None else concrete(std)
@@ -73,7 +74,11 @@ def parameter_table(names, estimate, std=None, *, unidentified=None, extra=None,
     rows = []
     for j, name in enumerate(names):
         row = [name, format_number(est[j])]
-        if sd is not None:
+        if sd is not None and sd[j] == 0 and np.isfinite(est[j]):
+            # exactly 0: a normalisation sets it (b1 = 1 where nb = 1 and B(1) = 1), it is
+            # not estimated; a printed "std err 0" would read as a perfect estimate
+            row += ["fixed", "(set by the normalisation)"]
+        elif sd is not None:
             lo, hi = est[j] - Z95 * sd[j], est[j] + Z95 * sd[j]
             row += [format_number(sd[j]), f"[{format_number(lo)}, {format_number(hi)}]"]
         row += [format_array(v[j]) if v is not None else "?" for v in extra.values()]
