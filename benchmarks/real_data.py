@@ -43,16 +43,16 @@ def tanks(na=2, nb=2, m=3, criterion="simulation", starts=32):
     return row
 
 
-def brfd(name, step=4):
+def brfd(name, step=4, criterion="simulation"):
     rec = hbjax.datasets.brfd(name)
     v, y = rec.v[::step], rec.y[::step]
     try:
         res = hbjax.fit((v, y), na=2, nb=2, m=3, key=jax.random.key(0), starts=32,
-                        criterion="simulation", progress=False)
+                        criterion=criterion, progress=False)
     except hbjax.RefinementError as err:
         return {"record": name, "result": f"refused: {err}"[:160]}
-    return {"record": name, "result": res.message, "largest pole": poles(res.model.arx.a),
-            "free-run fit %": float(res.sim_fit[0])}
+    return {"record": name, "result": res.message, "criterion": res.criterion,
+            "largest pole": poles(res.model.arx.a), "free-run fit %": float(res.sim_fit[0])}
 
 
 def holdout_rule(fraction=0.7):
@@ -73,10 +73,13 @@ if __name__ == "__main__":
                   f", estimation {row['estimation RMSE (estimate)']:.3f}", flush=True)
         print(holdout_rule(), flush=True)
     print("Cascaded Tanks, published validation RMSE:", PUBLISHED)
-    for kw in ({}, {"criterion": "prediction"}, {"m": 4}):
+    for kw in ({}, {"criterion": "prediction"}, {"m": 4}, {"criterion": "auto"}):
         row = tanks(**kw)
         print("  " + "; ".join(f"{k}: {v:.3f}" if isinstance(v, float) else f"{k}: {v}"
                                for k, v in row.items()), flush=True)
     print("BRFD (decimated to 256 Hz), defaults of identify fit:")
     for name in hbjax.datasets.brfd_names():
         print("  ", brfd(name), flush=True)
+    print("BRFD, hbjax.fit's default criterion (auto):")
+    for name in hbjax.datasets.brfd_names():
+        print("  ", brfd(name, criterion="auto"), flush=True)
