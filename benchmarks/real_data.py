@@ -1,6 +1,7 @@
 """Real recordings by the plain path: the Cascaded Tanks benchmark with the defaults of
 ``hbjax identify fit`` (orders (2, 2, 3), criterion "simulation", initial state estimated,
-32 starts, seed 0), and the bundled friction-damper (BRFD) tests with ``hbjax.fit``.
+32 starts, seed 0), and the bundled friction-damper (BRFD) tests with ``hbjax.fit``, each
+also with ``hbjax.fit``'s default criterion, "auto".
 
 Prints the figures recorded in benchmarks/RESULTS.md ("Real data"). Run with
 ``nice python benchmarks/real_data.py`` (several minutes on 2 cores). ``--structures``
