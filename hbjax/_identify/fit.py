@@ -399,10 +399,11 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       criterion, consistent under either noise, searches the starts with it too, and
       reports the success with the higher free-run fit; where they are white, it does so
       where that refinement's own free-run errors are white and its one-step errors
-      coloured (sensor noise, whose bias can whiten the prediction optimum's errors). Where no prediction start succeeds (for another reason than
-      inputs that do not determine the branches), the starts are searched again with the
-      simulation criterion, whose success is reported where the noise is not the
-      equation's by those readings (`criterion_choice` says which and why;
+      coloured (sensor noise, whose bias can whiten the prediction optimum's errors).
+      Where no prediction start succeeds (for another reason than inputs that do not
+      determine the branches), the starts are searched again with the simulation
+      criterion, whose success is reported where the noise is not the equation's by
+      those readings (`criterion_choice` says which and why;
       :mod:`hbjax._identify.fit_criterion`).
       Under ``jax.jit`` ``"auto"`` is the prediction criterion.
     - `max_steps`: Levenberg–Marquardt steps per start.
