@@ -33,7 +33,8 @@ class InitialState(eqx.Module):
       ``y0 = [y(-1), y(-2), ..., y(-na)]`` (the order of ``a``).
     - `u0`: the play operator's state ``u(-1)``; the linear block's input lags before the
       first sample are held at it (``u(-j) = u0``).
-    - `cost`: sum of squared free-run errors on the record it was estimated from.
+    - `cost`: sum of squared errors, on the record it was estimated from, of the run it was
+      estimated for: the free run, or :func:`hbjax.compare`'s ``horizon``-step predictor.
     """
 
     y0: Float[Array, " na"]

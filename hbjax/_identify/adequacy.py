@@ -128,15 +128,26 @@ def _lagged_gram(v_c, valid, lags: int):
     return diagonals[jnp.abs(j[:, None] - j[None, :]), jnp.minimum(j[:, None], j[None, :])]
 
 
+def _centred(e, valid, n):
+    """``e`` less its mean over the ``valid`` samples (``n`` of them), zero elsewhere."""
+    return jnp.where(valid, e - jnp.sum(jnp.where(valid, e, 0.0)) / n, 0.0)
+
+
+def _ljung_box(e_c, n, lags: int):
+    """Ljung-Box statistic ``N (N+2) sum_k r_e(k)^2 / (N-k)`` of centred errors ``e_c``."""
+    see = jnp.maximum(jnp.sum(e_c**2), jnp.finfo(e_c.dtype).tiny)
+    r_e = _correlations(e_c, e_c, lags)[1:] / see
+    return n * (n + 2) * jnp.sum(r_e**2 / (n - jnp.arange(1, lags + 1)))
+
+
 def _whiteness(e, v, valid, n, lags: int):
     """``(ljung_box, independence, dof)`` of one record's errors ``e``."""
-    e_c = jnp.where(valid, e - jnp.sum(e) / n, 0.0)
-    v_c = jnp.where(valid, v - jnp.sum(jnp.where(valid, v, 0.0)) / n, 0.0)
+    e_c = _centred(e, valid, n)
+    v_c = _centred(v, valid, n)
     tiny = jnp.finfo(e.dtype).tiny
     see = jnp.maximum(jnp.sum(e_c**2), tiny)
     svv = jnp.maximum(jnp.sum(v_c**2), tiny)
-    r_e = _correlations(e_c, e_c, lags)[1:] / see
-    ljung_box = n * (n + 2) * jnp.sum(r_e**2 / (n - jnp.arange(1, lags + 1)))
+    ljung_box = _ljung_box(e_c, n, lags)
     # Cross-correlations with a coloured input are correlated through the Gram matrix R_v of
     # its lagged windows: N r^T R_v^+ r is chi-square with rank(R_v) degrees of freedom (as
     # hbjax.resid; the Toeplitz matrix of v's autocorrelation stands for R_v only where it

@@ -254,13 +254,76 @@ def _general_past(model, base, v, y, play_states):
         if best is None or cost < best[0]:
             best = (cost, u0, coef, fitted)
     _, u0, coef, y_hat = best
-    n, na = h.shape[1], base.arx.na
+    return InitialState(_output_lags(base, u0, coef), u0, jnp.sum((y - y_hat) ** 2)), y_hat, coef
+
+
+def _output_lags(base: Hammerstein, u0, past):
+    """The output lags ``y0`` whose equation errors, with the input lags held at ``u0``,
+    come nearest `past` (least squares; exact where the past is one of a system at rest
+    in its play state)."""
+    dtype = past.dtype
+    n, na = past.shape[0], base.arx.na
+    if not na:
+        return jnp.zeros(0, dtype)
     lags = jax.jacfwd(lambda y0: injection(base, y0, jnp.zeros((), dtype), n))(
         jnp.zeros(na, dtype))
     # (a run from (y0, u0) also holds the input lags at u0: their part is not y0's)
     held = injection(base, jnp.zeros(na, dtype), u0, n)
-    y0 = jnp.linalg.lstsq(lags, coef - held)[0] if na else jnp.zeros(0, dtype)
-    return InitialState(y0, u0, jnp.sum((y - y_hat) ** 2)), y_hat, coef
+    return jnp.linalg.lstsq(lags, past - held)[0]
+
+
+@eqx.filter_jit
+def _ahead_fits(model: Hammerstein, v, y, horizon: int, play_states):
+    """Per play state in `play_states`: the squared error of the `horizon`-step predictor
+    and the past's equation errors (its first ``max(na, nb)`` samples) that minimise it.
+    The predictor is affine in those errors, so they are a least-squares solve."""
+    zero = jnp.zeros(max(model.arx.na, model.arx.nb), v.dtype)
+
+    def one(u0):
+        run = lambda past: _ahead(model, v, y, horizon, u0, past)  # noqa: E731
+        base, response = run(zero), jax.jacfwd(run)(zero)
+        past = jnp.linalg.lstsq(response, y - base)[0]
+        return jnp.sum((y - base - response @ past) ** 2), past
+
+    return jax.vmap(one)(play_states)
+
+
+#: Beyond this many predictor steps (horizon x samples), the `horizon`-step state is sought
+#: from the free run's play state and the convention's 0 only, not over a grid too: every
+#: grid point costs a `horizon`-step prediction per past equation error.
+_AHEAD_GRID_STEPS = 10_000_000
+
+
+def ahead_state(model: Hammerstein, v, y, horizon: int, free_u0):
+    """Initial state for :func:`compare`'s ``horizon``-step predictor, as MATLAB's
+    ``'e'``, fitted to that predictor's own errors, not the free run's (a free-run start
+    judged the predictor worse than a zero start on records a model cannot hold). Play
+    states tried: the free run's `free_u0`, the convention's 0 and, where the record is not
+    too long for it, a 33-point grid over the band at the first input refined once between
+    the best point's neighbours; for each, the past's equation errors by least squares
+    (:func:`_ahead_fits`). Since 0 is among them, the estimate never predicts worse than
+    the zero start. **Returns:** ``(state, y_hat, past)`` as :func:`hammerstein_state`."""
+    dtype = float_dtype(model, v, y)
+    v, y = jnp.asarray(v, dtype), jnp.asarray(y, dtype)
+    states = [float(free_u0), 0.0]
+    costs, pasts = _ahead_fits(model, v, y, horizon, jnp.asarray(states, dtype))
+    costs, pasts = list(np.asarray(costs)), list(pasts)
+    if horizon * v.shape[0] <= _AHEAD_GRID_STEPS:
+        p1, p2 = float(model.backlash.p1(v[0])), float(model.backlash.p2(v[0]))
+        grid = np.linspace(min(p1, p2), max(p1, p2), _PLAY_GRID)
+        for _ in range(2):
+            more, more_pasts = _ahead_fits(model, v, y, horizon, jnp.asarray(grid, dtype))
+            more = np.asarray(more)
+            states, costs, pasts = states + list(grid), costs + list(more), pasts + list(more_pasts)
+            k, step = int(np.argmin(more)), grid[1] - grid[0]
+            grid = np.linspace(max(grid[k] - step, grid[0]), min(grid[k] + step, grid[-1]),
+                               _PLAY_GRID)
+    best = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan))) if np.any(
+        np.isfinite(costs)) else 1
+    u0, past = jnp.asarray(states[best], dtype), pasts[best]
+    y_hat = _ahead(model, v, y, horizon, u0, past)
+    state = InitialState(_output_lags(model, u0, past), u0, jnp.sum((y - y_hat) ** 2))
+    return state, y_hat, past
 
 
 _PLAY_GRID = 33
@@ -319,7 +382,9 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
       state and the past's response through the base's linear block by least squares,
       the predictors starting from the play state only; an extension with a state of its
       own, such as the two levels of the diagnosis's two-store level law, estimates it
-      itself) or ``"zero"`` (the paper's zero
+      itself; with a `horizon` shorter than the record, a Hammerstein predictor's start
+      is fitted to that predictor's own errors, :func:`ahead_state`) or ``"zero"`` (the
+      paper's zero
       initial conditions).
     - `horizon`: ``None`` for the free run, or an integer ``>= 1``.
     - `names`: labels of the models (default ``model 0``, ``model 1``, ...).
@@ -398,19 +463,22 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
 def _run(model, covariance, v, y, initial_state, horizon):
     """One row of :func:`compare`: ``(initial state or None, y_hat, y_std)``. An output
     that overflows (an unstable model) is refused: its fit would be NaN."""
-    state, kw, free_run, past = None, {}, None, None
-    if initial_state == "estimate" and not isinstance(model, Hammerstein):
+    state, kw = None, {}
+    if initial_state == "zero":
+        y_hat = simulate(model, v) if horizon is None else predict_ahead(model, v, y, horizon)
+    elif not isinstance(model, Hammerstein):
         state, free_run = extension_state(model, v, y)
         kw = {"u0": state.u0}  # the predictors: the play state only
-    elif initial_state == "estimate":
-        state, free_run, past = hammerstein_state(model, v, y)
+        y_hat = free_run if horizon is None else predict_ahead(model, v, y, horizon, **kw)
+    elif horizon is not None and horizon < v.shape[0]:
+        # the predictor's own start (the free run's play state is one candidate)
+        state, y_hat, _ = ahead_state(model, v, y, horizon,
+                                      estimate_initial_state(model, v, y).u0)
+    else:  # the free run (a horizon as long as the record is one)
+        state, y_hat, _ = hammerstein_state(model, v, y)
         kw = {"u0": state.u0, "y0": state.y0}
-    if horizon is None:
-        y_hat = simulate(model, v, **kw) if free_run is None else free_run
-    elif past is not None:
-        y_hat = predict_ahead(model, v, y, horizon, u0=state.u0, past=past)
-    else:
-        y_hat = predict_ahead(model, v, y, horizon, **kw)
+        if y_hat is None:
+            y_hat = simulate(model, v, **kw)
     y_hat = np.asarray(y_hat)
     if not np.all(np.isfinite(y_hat)):
         first = int(np.flatnonzero(~np.isfinite(y_hat))[0])

@@ -49,7 +49,7 @@ import jax.numpy as jnp
 
 from .._misc import chi2_sf
 from .._results import RESULTS
-from .adequacy import LAGS, _one_step, _rounding, _whiteness, whiteness_p
+from .adequacy import LAGS, _centred, _ljung_box, _one_step, _rounding, whiteness_p
 from .compare import compare, play_state_for_prediction
 from .criteria import PREDICTION
 
@@ -178,8 +178,8 @@ def free_run_whiteness(model, recordings, initial_state: str) -> float:
             continue
         y_hat = jnp.asarray(compare(model, v, y, initial_state=initial_state).y_hat)
         e = y - jnp.reshape(y_hat, y.shape)
-        valid = jnp.ones(y.shape, bool)
-        q += float(_whiteness(e, v, valid, jnp.asarray(float(y.shape[0]), y.dtype), LAGS)[0])
+        n = jnp.asarray(float(y.shape[0]), y.dtype)
+        q += float(_ljung_box(_centred(e, jnp.ones(y.shape, bool), n), n, LAGS))
         dof += LAGS
     return float(chi2_sf(q, dof)) if dof else float("nan")
 
