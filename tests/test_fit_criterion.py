@@ -129,8 +129,42 @@ def test_auto_keeps_the_prediction_success_when_the_adopted_refinement_is_refuse
                     progress=False)
     assert res.result == hbjax.RESULTS.successful and res.criterion == "prediction"
     assert res.criterion_choice.startswith("auto: prediction kept; its one-step errors are "
-                                           "coloured, but neither the output-error "
-                                           "refinement")
+                                           "coloured, but the output-error criterion gave "
+                                           "no success")
+
+
+def test_the_output_error_results_compete_by_cost_as_fits_starts_do():
+    # The refinement from the prediction optimum and the output-error search are judged
+    # as fit judges its best start: the lower cost wins among the screened results, and a
+    # success at a higher cost than a refused optimum is a local minimum, not a success
+    # (a BRFD record: the refinement at 59.8 % beside the search's refused 67.7 %).
+    from types import SimpleNamespace
+
+    from hbjax._identify.fit_criterion import _better
+
+    R = hbjax.RESULTS
+
+    def result(code, fit):
+        return SimpleNamespace(result=code, sim_fit_pooled=fit)
+
+    samples = 1000
+    out, searched = result(R.successful, 59.8), result(R.branches_undetermined, 67.7)
+    assert _better(out, searched, samples) is searched  # refused: no success
+    out, searched = result(R.branches_undetermined, 59.8), result(R.successful, 67.7)
+    assert _better(out, searched, samples) is searched
+    out, searched = result(R.successful, 67.7), result(R.loop_unresolved, 59.8)
+    assert _better(out, searched, samples) is out
+    # an unscreened refusal (unstable, below the floor) does not compete
+    out, searched = result(R.successful, 59.8), result(R.unstable, 67.7)
+    assert _better(out, searched, samples) is out
+    assert _better(result(R.unstable, 1.0), result(R.poor_fit, 2.0), samples) is None
+    # within 2 sigma^2 of each other: the same optimum, the refinement kept
+    e = 1.0 - 0.9
+    within = 100.0 * (1.0 - e / np.sqrt(1.0 + 1.0 / samples))
+    beyond = 100.0 * (1.0 - e / np.sqrt(1.0 + 3.0 / samples))
+    out = result(R.successful, 90.0)
+    assert _better(out, result(R.branches_between_levels, within), samples) is out
+    assert _better(out, result(R.branches_between_levels, beyond), samples).result != R.successful
 
 
 def test_the_package_own_searches_skip_the_whiteness_note_they_never_show(monkeypatch):

@@ -397,7 +397,7 @@ def fit(recordings, *, na: int, nb: int, m: int, key, starts: int = 32,
       the equation-error model of eq. (10) holds); where they are coloured (noise at the
       sensor, or dynamics the model lacks) it refines the optimum with the simulation
       criterion, consistent under either noise, searches the starts with it too, and
-      reports the success with the higher free-run fit; where they are white, it does so
+      reports the lower-cost of the two where it succeeds; where they are white, it does so
       where that refinement's own free-run errors are white and its one-step errors
       coloured (sensor noise, whose bias can whiten the prediction optimum's errors).
       Where no prediction start succeeds (for another reason than inputs that do not
