@@ -185,3 +185,20 @@ def test_predictors_start_from_their_own_estimated_state():
             assert own.fit >= zero.fit - 1e-9, (seed, horizon, own.fit, zero.fit)
             borrowed = predict_ahead(wrong, v, y, horizon, u0=free_start.u0, y0=free_start.y0)
             assert own.fit >= hbjax.fit_percent(y, borrowed) - 1e-9, (seed, horizon)
+
+
+def test_predictor_start_on_records_too_long_for_the_grid(monkeypatch):
+    """Past `_AHEAD_GRID_STEPS` predictor steps only the free run's play state and 0 are
+    weighed: still never worse than the zero start, and the true model still exact on
+    its noise-free record cut from a run."""
+    import hbjax._identify.compare as compare_module
+
+    monkeypatch.setattr(compare_module, "_AHEAD_GRID_STEPS", 0)
+    for seed in range(3):
+        model, v, y, free = _tail_of_a_run(3100 + seed, T=400, level=0.05)
+        wrong = hbjax.Hammerstein(model.backlash,
+                                  hbjax.ARX(0.7 * np.asarray(model.arx.a), np.asarray(model.arx.b)))
+        for horizon in (1, 4):
+            own = hbjax.compare(wrong, v, y, horizon=horizon).fit
+            assert own >= hbjax.compare(wrong, v, y, horizon=horizon, initial_state="zero").fit - 1e-9
+            assert hbjax.compare(model, v, free, horizon=horizon).fit > 99.999, (seed, horizon)

@@ -285,7 +285,8 @@ def _ahead_fits(model: Hammerstein, v, y, horizon: int, play_states):
         past = jnp.linalg.lstsq(response, y - base)[0]
         return jnp.sum((y - base - response @ past) ** 2), past
 
-    return jax.vmap(one)(play_states)
+    # one state at a time: a batch would hold (states x errors x lags) records at once
+    return jax.lax.map(one, play_states)
 
 
 #: Beyond this many predictor steps (horizon x samples), the `horizon`-step state is sought
@@ -305,21 +306,26 @@ def ahead_state(model: Hammerstein, v, y, horizon: int, free_u0):
     the zero start. **Returns:** ``(state, y_hat, past)`` as :func:`hammerstein_state`."""
     dtype = float_dtype(model, v, y)
     v, y = jnp.asarray(v, dtype), jnp.asarray(y, dtype)
-    states = [float(free_u0), 0.0]
-    costs, pasts = _ahead_fits(model, v, y, horizon, jnp.asarray(states, dtype))
-    costs, pasts = list(np.asarray(costs)), list(pasts)
-    if horizon * v.shape[0] <= _AHEAD_GRID_STEPS:
+    fixed = [float(free_u0), 0.0]
+    states, costs, pasts = [], [], []
+
+    def weigh(tried):
+        more, more_pasts = _ahead_fits(model, v, y, horizon, jnp.asarray(tried, dtype))
+        more = np.where(np.isfinite(more), np.asarray(more), np.inf)
+        states.extend(tried), costs.extend(more), pasts.extend(more_pasts)
+        return more
+
+    if horizon * v.shape[0] > _AHEAD_GRID_STEPS:
+        weigh(fixed)
+    else:
         p1, p2 = float(model.backlash.p1(v[0])), float(model.backlash.p2(v[0]))
-        grid = np.linspace(min(p1, p2), max(p1, p2), _PLAY_GRID)
-        for _ in range(2):
-            more, more_pasts = _ahead_fits(model, v, y, horizon, jnp.asarray(grid, dtype))
-            more = np.asarray(more)
-            states, costs, pasts = states + list(grid), costs + list(more), pasts + list(more_pasts)
-            k, step = int(np.argmin(more)), grid[1] - grid[0]
-            grid = np.linspace(max(grid[k] - step, grid[0]), min(grid[k] + step, grid[-1]),
-                               _PLAY_GRID)
-    best = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan))) if np.any(
-        np.isfinite(costs)) else 1
+        lo, hi = min(p1, p2), max(p1, p2)
+        grid = np.linspace(lo, hi, _PLAY_GRID)
+        for _ in range(2):  # the same 35 states' shape both times: one compilation
+            k = int(np.argmin(weigh(fixed + list(grid))[2:]))
+            step = grid[1] - grid[0]
+            grid = np.linspace(max(grid[k] - step, lo), min(grid[k] + step, hi), _PLAY_GRID)
+    best = int(np.argmin(costs))  # all inf (an overflowing model): the free run's state
     u0, past = jnp.asarray(states[best], dtype), pasts[best]
     y_hat = _ahead(model, v, y, horizon, u0, past)
     state = InitialState(_output_lags(model, u0, past), u0, jnp.sum((y - y_hat) ** 2))
