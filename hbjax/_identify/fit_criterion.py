@@ -211,9 +211,9 @@ def _better(out, searched, samples: int):
     report had both been its starts: the lower cost (higher free-run fit on the records)
     among those that passed its screen (stable, a significant input path, above the
     floor), the refinement unless the search's cost is lower by more than ``2 sigma^2``
-    (``sigma^2 = SSE / samples``: the same optimum within its noise). ``None`` where that
-    one is not a success: a success at a higher cost than a refused optimum is a local
-    minimum (measured on a BRFD record: the refinement from the prediction optimum at
+    (``sigma^2 = SSE / samples``: the same optimum within its noise); ``None`` where
+    neither passed. Where the one returned is refused, the output-error criterion has no
+    success: a success at a higher cost than a refused optimum is a local minimum (measured on a BRFD record: the refinement from the prediction optimum at
     59.8 % free-run fit beside the search's 67.7 %, whose branches the record does not
     determine). One refinement from the biased prediction optimum can stop at a worse
     optimum than the starts reach: 75.1 against 89.8 % validation fit under 5 % sensor
@@ -251,7 +251,8 @@ def choose_criterion(res, recordings, *, initial_state, refine_output_error, ado
     refinement from its model, ``refine_output_error(model)`` (a
     :class:`hbjax.RefineResult`), made a fit result and judged by ``adopt(res, refined)``,
     or the output-error criterion's own search, ``search_output_error()`` (a
-    :class:`hbjax.FitResult`), the lower-cost of the two where it succeeds (:func:`_better`), where
+    :class:`hbjax.FitResult`), the lower-cost of the two where it succeeds
+    (:func:`_better`), where
     either `res`'s one-step errors are coloured at :data:`COLOURED_P` or the refinement
     reads the noise as the sensor's (:func:`noise_at_output`); in the second case a
     refusal where neither succeeds (the prediction optimum is then biased and its
