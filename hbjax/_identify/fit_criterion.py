@@ -215,7 +215,8 @@ def _better(out, searched, samples: int):
     neither passed. Where the one returned is refused, the output-error criterion has no
     success: a success at a higher cost than a refused optimum is a local minimum
     (measured on a BRFD record: the refinement from the prediction optimum at 59.8 %
-    free-run fit beside the search's 67.7 %, whose branches the record does not determine). One refinement from the biased prediction optimum can stop at a worse
+    free-run fit beside the search's 67.7 %, whose branches the record does not
+    determine). One refinement from the biased prediction optimum can stop at a worse
     optimum than the starts reach: 75.1 against 89.8 % validation fit under 5 % sensor
     noise, 58-61 against 66-71 % free-run fit on the BRFD records."""
     screened = [r for r in (out, searched)
