@@ -230,6 +230,34 @@ def test_auto_reads_sensor_noise_that_the_biased_prediction_optimum_whitens():
     assert _validation_fit(auto.model, *val) > _validation_fit(pred.model, *val) + 3.0
 
 
+def test_a_refusal_under_sensor_noise_carries_the_prediction_whiteness_p(monkeypatch):
+    # The record of the test above, the output-error judgement refused: "auto" returns
+    # the refusal, and it still says how white the prediction optimum's errors were.
+    import hbjax._identify.fit as fit_module
+
+    judge = fit_module.judge_free_run
+
+    def refuse_output_error(res, recordings):
+        res = judge(res, recordings)
+        if res.criterion == "simulation":
+            return dataclasses.replace(res, result=hbjax.RESULTS.free_run_undetermined)
+        return res
+
+    s, rec, _ = _benchmark_case(5, 3, 0.2, "output")
+    kw = dict(na=s["na"], nb=s["nb"], m=3, key=jax.random.key(3), progress=False,
+              throw=False)
+    pred = hbjax.fit(rec, criterion="prediction", **kw)
+    monkeypatch.setattr(fit_module, "judge_free_run", refuse_output_error)
+    auto = hbjax.fit(rec, **kw)
+    assert auto.result == hbjax.RESULTS.free_run_undetermined
+    assert auto.criterion_choice.startswith("auto: simulation (output error): the "
+                                            "refinement from the prediction optimum reads "
+                                            "noise at the sensor"), auto.criterion_choice
+    assert float(auto.prediction_whiteness_p) == pytest.approx(
+        float(pred.prediction_whiteness_p), rel=1e-6)
+    assert float(auto.prediction_whiteness_p) >= 1e-3
+
+
 def test_auto_never_keeps_a_biased_prediction_success_once_the_noise_reads_as_the_sensors():
     # 20 % sensor noise, the true model's own free-run fit on the record 1.6 %: the
     # prediction optimum "succeeded" at 0.8 % and validated at -3.6 %; the output-error

@@ -286,8 +286,9 @@ def choose_criterion(res, recordings, *, initial_state, refine_output_error, ado
         searched = search_output_error()
         best = _better(out, searched, samples)
         if best is None or best.result != RESULTS.successful:
-            return dataclasses.replace(best or out, criterion_choice=SENSOR_REFUSED.format(
-                _no_success(out, searched, best)))
+            return dataclasses.replace(
+                best or out, prediction_whiteness_p=jnp.asarray(p),
+                criterion_choice=SENSOR_REFUSED.format(_no_success(out, searched, best)))
         return dataclasses.replace(best, prediction_whiteness_p=jnp.asarray(p),
                                    criterion_choice=SENSOR.format(_how(best, searched)))
     out = adopt(res, refined) if refined.result == RESULTS.successful else refined
