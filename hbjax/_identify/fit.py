@@ -18,6 +18,7 @@ from jaxtyping import Array, Float, Int
 from .._core import display
 from .._core.arx import ARX
 from .._core.backlash import Backlash
+from .._core.buckets import padded_records, should_bucket
 from .._core.cache import ensure_compilation_cache
 from .._core.mappings import release_compiled_programs
 from .._core.progress import check_progress, progress_bar
@@ -43,7 +44,7 @@ from .refine import check_floor, refine, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
 from .free_run import judge_free_run
 from .undetermined import judge_branches, refuse_unseen
-from .refine_result import AbstractRefinement, RefinementError
+from .refine_result import AbstractRefinement, RefinementError, at_estimated_start
 
 
 class FitResult(AbstractRefinement):
@@ -322,7 +323,11 @@ def _solve(recs, key, centres, traced, loop_tolerance, options):
     moved = any(is_traced(c) or float(c) != 0.0 for c in centres)
     solved = less_centres(recs, *centres) if moved else recs
     starts, m, criterion = options["starts"], options["m"], options["criterion"]
-    res = _fit_jit(solved, key, polish=traced, **options)
+    # One program per bucket of record lengths, as refine's (the padding is masked out of
+    # every sum): the starts' program took 10-25 s to compile for each new length.
+    bucketed = not traced and should_bucket(solved)
+    padded = padded_records(solved) if bucketed else solved
+    res = _fit_jit(padded, key, polish=traced, **options)
     # A closing start was solved on the core operator already (under jit, fit_traceable
     # polished the best start itself).
     if not traced and (
@@ -331,11 +336,14 @@ def _solve(recs, key, centres, traced, loop_tolerance, options):
             or res.result != RESULTS.successful):
         # Only a loop closing inside the data (or no success) needs the core solve of
         # the best start: compiled on its own, from the starts' result.
-        res = _polish_jit(res, solved, criterion=criterion, max_steps=options["max_steps"],
+        res = _polish_jit(res, padded, criterion=criterion, max_steps=options["max_steps"],
                           min_sim_fit=options["min_sim_fit"],
                           initial_state=options["initial_state"])
     if not traced and gain_vanishes(res.model):
-        res = better_in_paper_gauge(res, solved, key, _fit_jit, _polished_jit, options)
+        res = better_in_paper_gauge(res, padded, key, _fit_jit, _polished_jit, options)
+    if bucketed and options["initial_state"] == "estimate":
+        # (the padded solve's figure fits only the output lags of the start, as refine's)
+        res = at_estimated_start(res, solved)
     res = judge_branches(judge_loop(res, solved, loop_tolerance), solved)
     if not traced:
         res = judge_free_run(res, solved)

@@ -11,6 +11,7 @@ from jaxtyping import Array
 from .._core.arx import ARX
 from .._core.backlash import Backlash, play_sources, polyval_ascending
 from .._core.model import Hammerstein
+from .criteria import unpack, where_valid
 from .linear import arx_least_squares
 
 
@@ -78,7 +79,8 @@ def arx_given_backlash(backlash: Backlash, recordings, na: int, nb: int,
         p1, p2 = backlash.p1(v), backlash.p2(v)
         return play_sources(jnp.minimum(p1, p2), jnp.maximum(p1, p2))[0]
 
-    theta = arx_least_squares([(internal(v), y) for v, y in recordings], na, nb, skip=skip)
+    theta = arx_least_squares([(internal(v), y, mask)
+                               for v, y, mask in map(unpack, recordings)], na, nb, skip=skip)
     return ARX(theta[:na], theta[na:])
 
 
@@ -87,10 +89,13 @@ def canonical_labels(model: Hammerstein, recordings) -> tuple[Hammerstein, Array
     onto: the lower one when the band rises with ``v``, the upper one when it falls
     (``L = min``, ``H = max`` make the labels otherwise interchangeable)."""
     bl = model.backlash
-    v_all = jnp.concatenate([v for v, _ in recordings])
-    lo, hi = jnp.min(v_all), jnp.max(v_all)
+    records = [unpack(rec) for rec in recordings]
+    lo = jnp.min(jnp.stack([jnp.min(where_valid(mask, v, jnp.inf)) for v, _, mask in records]))
+    hi = jnp.max(jnp.stack([jnp.max(where_valid(mask, v, -jnp.inf)) for v, _, mask in records]))
     rising = (bl.p1(hi) + bl.p2(hi)) >= (bl.p1(lo) + bl.p2(lo))
-    p1_above = jnp.mean(bl.p1(v_all) - bl.p2(v_all)) > 0
+    # (the sign of the mean gap over the recorded samples: the sum's sign is the mean's)
+    p1_above = sum(jnp.sum(where_valid(mask, bl.p1(v) - bl.p2(v), 0.0))
+                   for v, _, mask in records) > 0
     swap = rising == p1_above
     c1 = jnp.where(swap, bl.c2, bl.c1)
     c2 = jnp.where(swap, bl.c1, bl.c2)

@@ -50,12 +50,16 @@ def arx_least_squares(records, na: int, nb: int, *, skip: int = 0,
     """``[a; b]`` minimising the equation errors of all records ``(u, y)`` at once (the
     normal equations summed over records, each record's first ``skip`` rows left out);
     see :func:`equilibrated_solve` for ``differentiable``. ``constant=True`` adds a
-    constant regressor (an offset in the equation) and returns ``[a; b; offset]``."""
+    constant regressor (an offset in the equation) and returns ``[a; b; offset]``.
+    A record ``(u, y, mask)`` counts only the rows `mask` marks (a record padded to a
+    bucket length, :func:`hbjax._identify.criteria.unpack`)."""
     gram, rhs = 0.0, 0.0
-    for u, y in records:
+    for u, y, *mask in records:
         phi = arx_regressors(u, y, na, nb)
         if constant:
             phi = jnp.concatenate([phi, jnp.ones((phi.shape[0], 1), phi.dtype)], axis=1)
+        if mask and mask[0] is not None:
+            phi = jnp.where(mask[0][:, None], phi, 0.0)
         phi = phi[skip:]
         gram = gram + phi.T @ phi
         rhs = rhs + phi.T @ y[skip:]
