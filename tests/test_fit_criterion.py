@@ -339,3 +339,32 @@ def test_select_structure_can_choose_its_criterion_as_fit_does():
     with pytest.raises(ValueError, match=r"`criterion` must be one of \('auto', 'prediction', 'simulation'\)"):
         hbjax.select_structure((v, y), na=2, nb=2, m=3, key=jax.random.key(0),
                                criterion="output", progress=False)
+
+
+def test_select_structure_scores_the_largest_row_with_autos_own_prediction_fit(monkeypatch):
+    # Equation noise: "auto" keeps the prediction criterion on the largest structure; that
+    # fit is the largest row's own (same key and starts), so it is not fitted twice.
+    import hbjax._identify.structure as structure_module
+
+    rng = np.random.default_rng(7)
+    s = random_paper_system(rng, n=2, m=3)
+    v = random_input(rng, "multisine", 800, 1.5 * s["h_m"])
+    sd = 0.03 * np.ptp(simulate_numpy(s, v)[0])
+    y = simulate_numpy(s, v, sd / noise_gain(s["a"]) * rng.standard_normal(v.size))[0]
+    calls = []
+    fit_unnoted = structure_module.fit_unnoted
+
+    def counted(*args, **kwargs):
+        calls.append((kwargs["na"], kwargs.get("criterion", "auto")))
+        return fit_unnoted(*args, **kwargs)
+
+    monkeypatch.setattr(structure_module, "fit_unnoted", counted)
+    kw = dict(nb=s["nb"], m=3, key=jax.random.key(0), progress=False)
+    sel = hbjax.select_structure((v, y), na=[1, s["na"]], criterion="auto", **kw)
+    assert sel.criterion == "prediction", sel.criterion_choice
+    assert calls == [(s["na"], "auto"), (1, "prediction")]
+    alone = hbjax.fit((v, y), na=s["na"], criterion="prediction", **kw)
+    row = sel.orders.index((s["na"], s["nb"], 3))
+    np.testing.assert_array_equal(hbjax.flatten_params(sel.models[row]),
+                                  hbjax.flatten_params(alone.model))
+    assert bool(sel.success[row]) == (alone.result == hbjax.RESULTS.successful)

@@ -15,6 +15,7 @@ from .._results import RESULTS
 from .._misc import no_spread, positive_int
 from .compare import compare, hammerstein_state, play_state_for_prediction
 from .fit import fit_unnoted
+from .criteria import PREDICTION
 from .fit_criterion import AUTO
 from .recordings import as_recordings, check_branch_degree, check_criterion
 from .stable import check_initial_state
@@ -155,10 +156,13 @@ def _validation_fit(model, validation, initial_state):
         return -np.inf
 
 
-def _score(recs, val, a, b, c, key, starts, criterion, initial_state, skip):
-    """One row of the table: fit the orders ``(a, b, c)`` and score them."""
-    res = fit_unnoted(recs, na=a, nb=b, m=c, key=key, starts=starts, criterion=criterion,
-                      initial_state=initial_state, throw=False, progress=False)
+def _score(recs, val, a, b, c, key, starts, criterion, initial_state, skip, res=None):
+    """One row of the table: fit the orders ``(a, b, c)`` (unless `res` is that fit
+    already) and score them."""
+    if res is None:
+        res = fit_unnoted(recs, na=a, nb=b, m=c, key=key, starts=starts,
+                          criterion=criterion, initial_state=initial_state, throw=False,
+                          progress=False)
     ok = bool(res.result == RESULTS.successful)
     # (a fit whose branches are known at the levels only reached its optimum: its loss
     # still compares the orders; measured in tests/test_validation_tools.py)
@@ -246,17 +250,22 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
     if short <= skip + 1:
         raise ValueError(f"`recordings`: the shortest record has {short} samples; scoring "
                          f"orders up to max(na, nb) = {skip} needs more than {skip + 1}.")
-    choice = ""
+    choice, known = "", {}
     if criterion == AUTO:
         largest = fit_unnoted(recs, na=na_list[-1], nb=nb_list[-1], m=m_list[-1], key=key,
                               starts=starts, initial_state=initial_state, throw=False,
                               progress=False)
         criterion, choice = largest.criterion, largest.criterion_choice
+        if criterion == PREDICTION:
+            # "auto" kept its prediction fit: the row's own fit, the same starts and key
+            # (an output-error result may be the refinement from that fit instead, which
+            # the other rows do not get, so that row is fitted as the others are)
+            known[grid[-1]] = largest
     rows = []
     with progress_bar(progress, total=len(grid), desc="select_structure") as bar:
         for a, b, c in grid:
             rows.append(_score(recs, val, a, b, c, key, starts, criterion, initial_state,
-                               skip))
+                               skip, known.get((a, b, c))))
             bar.update(1)
     column = {"bic": 3, "aic": 4}
     if rank_by == "validation":
