@@ -110,9 +110,8 @@ def test_auto_does_not_read_rounding_as_coloured_errors():
                                     "noise-free records)")
 
 
-def test_auto_keeps_the_prediction_success_when_the_adopted_refinement_is_refused(monkeypatch):
-    # fit judges the output-error refinement as it judges its best start; where that
-    # refuses it, the prediction criterion's success is reported, saying why.
+def _refuse_output_error_results(monkeypatch):
+    """Make `fit`'s free-run judgement refuse every output-error (simulation) result."""
     import hbjax._identify.fit as fit_module
 
     judge = fit_module.judge_free_run
@@ -124,6 +123,12 @@ def test_auto_keeps_the_prediction_success_when_the_adopted_refinement_is_refuse
         return res
 
     monkeypatch.setattr(fit_module, "judge_free_run", refuse_output_error)
+
+
+def test_auto_keeps_the_prediction_success_when_the_adopted_refinement_is_refused(monkeypatch):
+    # fit judges the output-error refinement as it judges its best start; where that
+    # refuses it, the prediction criterion's success is reported, saying why.
+    _refuse_output_error_results(monkeypatch)
     s, v, _, y = _output_noise_record(11, 1500)
     res = hbjax.fit((v, y), na=s["na"], nb=s["nb"], m=3, key=jax.random.key(0),
                     progress=False)
@@ -233,21 +238,11 @@ def test_auto_reads_sensor_noise_that_the_biased_prediction_optimum_whitens():
 def test_a_refusal_under_sensor_noise_carries_the_prediction_whiteness_p(monkeypatch):
     # The record of the test above, the output-error judgement refused: "auto" returns
     # the refusal, and it still says how white the prediction optimum's errors were.
-    import hbjax._identify.fit as fit_module
-
-    judge = fit_module.judge_free_run
-
-    def refuse_output_error(res, recordings):
-        res = judge(res, recordings)
-        if res.criterion == "simulation":
-            return dataclasses.replace(res, result=hbjax.RESULTS.free_run_undetermined)
-        return res
-
     s, rec, _ = _benchmark_case(5, 3, 0.2, "output")
     kw = dict(na=s["na"], nb=s["nb"], m=3, key=jax.random.key(3), progress=False,
               throw=False)
     pred = hbjax.fit(rec, criterion="prediction", **kw)
-    monkeypatch.setattr(fit_module, "judge_free_run", refuse_output_error)
+    _refuse_output_error_results(monkeypatch)
     auto = hbjax.fit(rec, **kw)
     assert auto.result == hbjax.RESULTS.free_run_undetermined
     assert auto.criterion_choice.startswith("auto: simulation (output error): the "
