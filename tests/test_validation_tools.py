@@ -415,3 +415,76 @@ def test_compare_ahead_promotes_float32_records_like_predict(system):
         f32 = hbjax.compare(model, v.astype(np.float32), y.astype(np.float32), horizon=horizon)
         f64 = hbjax.compare(model, v, y, horizon=horizon)
         assert f32.fit == pytest.approx(f64.fit, abs=1e-4)
+
+
+def test_float32_records_and_models_validate_as_widened_by_hand(system):
+    """With 64-bit mode on, `compare` widens float32 records as identification does: the
+    same numbers as converting them by hand; a float32 model estimates its start too (a
+    float64 constant once broke the golden-section loop's float32 carry)."""
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.size)))
+    v32, y32 = v.astype(np.float32), y.astype(np.float32)
+    for horizon in (None, 1, 4):
+        by_hand = hbjax.compare(model, v32.astype(float), y32.astype(float), horizon=horizon)
+        widened = hbjax.compare(model, v32, y32, horizon=horizon)
+        assert widened.fit == by_hand.fit and widened.rmse == by_hand.rmse
+        assert widened.y.dtype == np.float64
+    f = np.float32
+    model32 = hbjax.Hammerstein(
+        hbjax.Backlash(c1=np.asarray(model.backlash.c1, f), c2=np.asarray(model.backlash.c2, f)),
+        hbjax.ARX(a=np.asarray(model.arx.a, f), b=np.asarray(model.arx.b, f)))
+    state = hbjax.estimate_initial_state(model32, v32, y32)
+    assert state.u0.dtype == np.float32 and np.isfinite(float(state.cost))
+    for horizon in (None, 3):
+        row = hbjax.compare(model32, v32, y32, horizon=horizon)
+        assert abs(row.fit - hbjax.compare(model, v, y, horizon=horizon).fit) < 0.5
+
+
+def test_a_predictor_of_an_unstable_model_is_judged_though_its_free_run_overflows(system):
+    """The k-step predictor of an unstable model stays finite where its free run does not:
+    `compare` with a `horizon` judges it from its own estimated start (no better than from
+    rest is impossible: rest is among the candidates), and the free run whose squared error
+    would overflow is refused from either start, not scored -inf."""
+    model, v, rng = system
+    v = np.tile(v, 4)  # 1200 samples: 1.5^k passes 1e100 near k = 570
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.size)))
+    unstable = hbjax.Hammerstein(model.backlash, hbjax.ARX(a=[-1.5], b=[0.5]))
+    for horizon in (1, 5):
+        rest = hbjax.compare(unstable, v, y, horizon=horizon, initial_state="zero")
+        estimated = hbjax.compare(unstable, v, y, horizon=horizon)
+        assert np.isfinite(estimated.fit) and estimated.fit >= rest.fit - 1e-9
+    for initial_state in ("zero", "estimate"):
+        with pytest.raises(ValueError, match="`model`.*(grows beyond 1e.100|overflows)"):
+            hbjax.compare(unstable, v, y, initial_state=initial_state)
+
+
+def test_the_figures_refuse_arguments_a_computed_result_would_ignore(system):
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.size)))
+    computed = hbjax.compare(model, v, y)
+    for kwargs, named in (({"horizon": 5}, "`horizon`"), ({"initial_state": "zero"},
+                                                          "`initial_state`")):
+        with pytest.raises(TypeError, match=f"{named}: `result` is a Comparison"):
+            hbjax.plot.plot_compare(computed, **kwargs)
+    with pytest.raises(TypeError, match="`v`, `y`: `result` is a Comparison"):
+        hbjax.plot.plot_compare(computed, v, y)
+    with pytest.raises(TypeError, match="`lags`: `result` is a ResidualAnalysis"):
+        hbjax.plot.plot_resid(hbjax.resid(model, v, y), lags=5)
+    axes = hbjax.plot.plot_resid(model, v, y, lags=5)  # a model: analysed with those lags
+    # the lags drawn: the points outside the band and those inside it
+    assert sum(len(line.get_xdata()) for line in axes[0].lines[:2]) == 5
+
+
+def test_records_too_short_for_an_estimated_start_are_refused_not_scored_100(system):
+    model, v, rng = system
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=v.size)))
+    fit = dict(na=2, nb=2, m=3, key=jax.random.key(0), starts=2, progress=False)
+    with pytest.raises(ValueError, match=r"`recordings\[1\]` holds 5 samples, too few for "
+                                         r"initial_state='estimate'.*at least 6"):
+        hbjax.fit([(v, y), (v[:5], y[:5])], **fit)
+    with pytest.raises(ValueError, match=r"`recordings\[1\]` holds 2 samples"):
+        hbjax.refine(hbjax.normalise(model, 8.0), [(v, y), (v[:2], y[:2])],
+                     initial_state="estimate")
+    with pytest.raises(ValueError, match=r"`recordings\[1\]` holds 3 samples"):
+        hbjax.select_structure([(v, y), (v[:3], y[:3])], na=[1, 2], nb=2, m=3,
+                               key=jax.random.key(0), progress=False)

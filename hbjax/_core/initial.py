@@ -128,7 +128,9 @@ def _estimate(model: Hammerstein, v, y, n=None):
     k = jnp.argmin(costs)
     step = (hi - lo) / (_GRID - 1)
     left, right = jnp.maximum(grid[k] - step, lo), jnp.minimum(grid[k] + step, hi)
-    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+    # a Python float (weakly typed): a NumPy float64 would widen a float32 model's bracket
+    # and break the loop's carry type
+    ratio = (5.0 ** 0.5 - 1.0) / 2.0
 
     def golden(_, bracket):
         x0, x1 = bracket

@@ -11,8 +11,8 @@ from .._core.initial import InitialState, estimate_initial_state, injection, uns
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent_unchecked
-from .._misc import (as_float_array, check_magnitude, float_dtype, is_traced, lagged, no_spread,
-                     same_length)
+from .._misc import (MAX_MAGNITUDE, as_float_array, check_magnitude, float_dtype, is_traced,
+                     lagged, no_spread, same_length)
 from .recordings import as_input_output
 from .refine_result import AbstractRefinement
 from .stable import INITIAL_STATES, check_initial_state, start_response  # noqa: F401
@@ -188,6 +188,10 @@ def _record(v, y):
         raise ValueError(f"`v` and `y` must hold at least 2 samples, got {v.shape[0]}.")
     if is_traced(v) or is_traced(y):
         raise TypeError("`compare` works on concrete recordings; it cannot be jit-compiled.")
+    if jax.config.read("jax_enable_x64"):
+        # validation computes in float64, as identification does: a float32 record widened
+        # here gives bitwise what widening it by hand gives (docs/robustness.md)
+        v, y = v.astype(jnp.float64), y.astype(jnp.float64)
     # the fit's norms and the initial-state least squares overflow as the estimators' do
     return check_magnitude(v, "v"), check_magnitude(y, "y"), dt
 
@@ -477,9 +481,13 @@ def _run(model, covariance, v, y, initial_state, horizon):
         kw = {"u0": state.u0}  # the predictors: the play state only
         y_hat = free_run if horizon is None else predict_ahead(model, v, y, horizon, **kw)
     elif horizon is not None and horizon < v.shape[0]:
-        # the predictor's own start (the free run's play state is one candidate)
-        state, y_hat, _ = ahead_state(model, v, y, horizon,
-                                      estimate_initial_state(model, v, y).u0)
+        # the predictor's own start (the free run's play state is one candidate; a free run
+        # that overflows offers none, while the predictor may still be finite)
+        try:
+            free_u0 = estimate_initial_state(model, v, y).u0
+        except ValueError:
+            free_u0 = 0.0
+        state, y_hat, _ = ahead_state(model, v, y, horizon, free_u0)
     else:  # the free run (a horizon as long as the record is one)
         state, y_hat, _ = hammerstein_state(model, v, y)
         kw = {"u0": state.u0, "y0": state.y0}
@@ -490,6 +498,13 @@ def _run(model, covariance, v, y, initial_state, horizon):
         first = int(np.flatnonzero(~np.isfinite(y_hat))[0])
         raise ValueError(f"the output of `model` overflows to inf/NaN from sample {first} on: "
                          f"{unstable_why(model)}.")
+    peak = float(np.max(np.abs(y_hat)))
+    if peak > MAX_MAGNITUDE:
+        # finite, but its squared error overflows: the fit would read -inf
+        first = int(np.flatnonzero(np.abs(y_hat) > MAX_MAGNITUDE)[0])
+        raise ValueError(f"the output of `model` grows beyond {MAX_MAGNITUDE:.0e} from sample "
+                         f"{first} on (up to {peak:.3g}), too large for the fit's sums of "
+                         f"squares: {unstable_why(model)}.")
     y_std = np.full_like(y_hat, np.nan)
     if covariance is not None and horizon is None:
         y_std = np.asarray(free_run_std(model, covariance, v, **kw), y_hat.dtype)

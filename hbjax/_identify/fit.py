@@ -38,7 +38,7 @@ from .._core.model import Hammerstein
 from .._core.params import flatten_params
 from .recordings import as_recordings, check_branch_degree, check_criterion, total_samples
 from .quality import SIM_FIT_FLOOR
-from .stable import check_initial_state
+from .stable import check_estimated_start, check_initial_state
 from .._results import RESULTS, code as result_code, raise_if_failed
 from .refine import check_floor, refine, refine_traceable
 from .loop import LOOP_TOLERANCE, check_loop_tolerance, judge_loop
@@ -473,6 +473,7 @@ def fit_unnoted(recordings, *, na, nb, m, key, starts=32, criterion=AUTO, max_st
     check_key(key)
     loop_tolerance = check_loop_tolerance(loop_tolerance)
     recs = as_recordings(recordings)
+    check_estimated_start(recs, na, nb, initial_state)
     q = na + nb + 2 * m - 1
     if total_samples(recs) <= 2 * q:
         raise ValueError(

@@ -35,7 +35,7 @@ from .refine_kinks import escape_kinks, escape_pushed_through
 from .refine_result import (RefinementError, RefineResult, at_estimated_start, finish,
                             summarise)
 from .refine_solve import flat_residuals, gauge_transform, make_parametrisation
-from .stable import check_initial_state
+from .stable import check_estimated_start, check_initial_state
 from .units import in_unit, model_in_unit, output_unit, result_from_unit
 
 __all__ = ("RESULTS", "RefineResult", "RefinementError", "gauge_transform",
@@ -500,6 +500,7 @@ def refine(model: Hammerstein, recordings, *, criterion: str = "prediction", h_m
         check_gauge(model, h_m)
     min_sim_fit = check_floor(min_sim_fit)
     check_initial_state(initial_state)
+    check_estimated_start(recs, model.arx.na, model.arx.nb, initial_state)
     throw = check_bool(throw, "throw")
     restarts = positive_int(restarts, "restarts", minimum=0)
     loop_tolerance = check_loop_tolerance(loop_tolerance)

@@ -18,7 +18,7 @@ from .fit import fit_unnoted
 from .criteria import PREDICTION
 from .fit_criterion import AUTO
 from .recordings import as_recordings, check_branch_degree, check_criterion
-from .stable import check_initial_state
+from .stable import check_estimated_start, check_initial_state
 
 RANKINGS = ("bic", "aic", "validation")
 
@@ -246,6 +246,7 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
             raise ValueError(f"`validation` record {k} has {np.asarray(y_val).shape[0]} "
                              f"samples; judging orders up to max(na, nb) = "
                              f"{need // 2 - 1} from an estimated start needs at least {need}.")
+    check_estimated_start(recs, na_list[-1], nb_list[-1], initial_state)
     short = min(int(np.asarray(y).shape[0]) for _, y in recs)
     if short <= skip + 1:
         raise ValueError(f"`recordings`: the shortest record has {short} samples; scoring "

@@ -20,7 +20,8 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
 
     - `result`: a :class:`hbjax.Comparison`, or a model or a result of refine / fit (or a
       list of them) to compare on `v`, `y` (or an :class:`hbjax.Recording` as `v`) with
-      ``compare_kwargs`` (``initial_state``, ``horizon``, ``names``).
+      ``compare_kwargs`` (``initial_state``, ``horizon``, ``names``). A Comparison is
+      drawn as computed: `v`, `y` and ``compare_kwargs`` are then refused, not ignored.
     - `ax`: matplotlib axes (a new figure if ``None``).
     - `window`: ``(start, stop)`` samples to show, ``0 <= start < stop <= len(y)``.
 
@@ -32,7 +33,15 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
     **Returns:** the axes.
     """
     ax = checks.axes(ax, "ax")
-    if not isinstance(result, Comparison):
+    if isinstance(result, Comparison):
+        # a computed comparison is drawn as it is: arguments to compute another are refused
+        # rather than ignored
+        given = [f"`{n}`" for n, x in (("v", v), ("y", y)) if x is not None]
+        given += [f"`{n}`" for n in compare_kwargs]
+        if given:
+            raise TypeError(f"{', '.join(given)}: `result` is a Comparison, drawn as computed; "
+                            f"pass the model instead to compare it on other data or settings.")
+    else:
         if not isinstance(result, (AbstractModel, AbstractRefinement, list, tuple)):
             raise TypeError(f"`result` must be a Comparison, an hbjax model, a result of "
                             f"refine / fit, or a list of them, got {type(result).__name__}.")
@@ -59,17 +68,23 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
     return ax
 
 
-def plot_resid(result, v=None, y=None, *, axes=None, lags=25):
+def plot_resid(result, v=None, y=None, *, axes=None, lags=None):
     """Residual autocorrelation and cross-correlation with past inputs, each with the 99%
     band, as MATLAB's ``resid`` figure.
 
-    **Arguments:** `result` (a :class:`hbjax.ResidualAnalysis`, or a model analysed on `v`,
-    `y` with `lags`), `axes` (two matplotlib axes or ``None``).
+    **Arguments:** `result` (a :class:`hbjax.ResidualAnalysis`, drawn as computed; or a
+    model analysed on `v`, `y` with `lags`, default 25), `axes` (two matplotlib axes or
+    ``None``).
 
     **Returns:** the two axes.
     """
     axes = checks.axes(axes, "axes", count=2)
-    if not isinstance(result, ResidualAnalysis):
+    if isinstance(result, ResidualAnalysis):
+        given = [f"`{n}`" for n, x in (("v", v), ("y", y), ("lags", lags)) if x is not None]
+        if given:
+            raise TypeError(f"{', '.join(given)}: `result` is a ResidualAnalysis, drawn as "
+                            f"computed; pass the model instead to analyse other data or lags.")
+    else:
         if isinstance(getattr(result, "model", None), AbstractModel):  # a fit / refine result
             result = result.model
         if not isinstance(result, AbstractModel):
@@ -77,7 +92,7 @@ def plot_resid(result, v=None, y=None, *, axes=None, lags=25):
                             f"a model analysed on `v` and `y`, got {type(result).__name__}.")
         if v is None:
             raise TypeError("`v` is missing: pass a ResidualAnalysis, or a model with `v` and `y`.")
-        result = resid(result, v, y, lags=lags)
+        result = resid(result, v, y) if lags is None else resid(result, v, y, lags=lags)
     if axes is None:
         _, axes = plt.subplots(2, 1, figsize=(7, 5))
     k_auto = np.arange(1, result.lags + 1)
