@@ -289,6 +289,38 @@ def test_effect_files_with_invalid_parameters_give_model_file_errors(
 @pytest.mark.parametrize(
     "field, value, match",
     [
+        ("lower", "abc", r"`lower` must be a finite real number, got 'abc'"),
+        ("lower", {"list": [1, 2]}, r"`lower` must be a finite real number"),
+        ("upper", {"float": "nan"}, r"`upper` must be a finite real number"),
+        ("lower", 5.0, r"needs `lower` < `upper`, got 5.0 and -5.0"),
+        ("y_center", "abc", r"`y_center` must be a finite real number"),
+        ("y_center", {"float": "inf"}, r"`y_center` must be a finite real number"),
+        ("w_scale", "abc", r"`w_scale` must be a finite real number"),
+        ("params", {"array": [0.1] * 8 + [{"float": "nan"}], "dtype": "float64", "shape": [9],
+                    "kind": "jax"}, r"`params` contains NaN or inf"),
+    ],
+)
+def test_level_cascade_files_with_invalid_values_give_model_file_errors(
+        tmp_path, field, value, match):
+    """The diagnosis's two-store model is held to its constructor's checks when read back,
+    as the effects are: an edited file fails on loading, not later inside a simulation."""
+    from hbjax._diagnose.level_cascade import LevelCascade
+
+    model = LevelCascade(M, np.full(9, 0.1), np.zeros(2), 1.0, 0.0, 1.0, -5.0, 5.0)
+    doc = json.loads(hbjax.save_model(tmp_path / "c.json", model).read_text())
+    doc["model"]["fields"][field] = value
+    if field == "lower":
+        doc["model"]["fields"]["upper"] = -5.0 if value == 5.0 else doc["model"]["fields"]["upper"]
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(doc))
+    with pytest.raises(hbjax.ModelFileError, match=rf"`model` \(LevelCascade\).*{match}"):
+        hbjax.load_model(p)
+    assert isinstance(hbjax.load_model(tmp_path / "c.json"), LevelCascade)
+
+
+@pytest.mark.parametrize(
+    "field, value, match",
+    [
         ("base", "hello", r"MissingInput\.base` must be an hbjax\.Hammerstein, got str"),
         ("scale", {"array": [0.0], "dtype": "float64", "shape": [1]},
          r"MissingInput\.scale` must be > 0"),

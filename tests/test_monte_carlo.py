@@ -406,3 +406,22 @@ def test_one_realisation_gives_no_slope_interval():
     np.testing.assert_allclose(study.slope, expected, rtol=1e-12)
     assert np.all(np.isnan(study.slope_stderr)) and np.all(np.isnan(study.slope_ci))
     assert np.all(np.isnan(study.std))
+
+
+def test_identical_realisations_give_no_slope_interval():
+    """Realisations that do not differ (no noise: every draw the same record) measure no
+    Monte Carlo uncertainty either: NaN interval, not a zero-width one from an infinite
+    weight."""
+    rng = np.random.default_rng(1)
+    true = np.array([0.5, 2.0])
+    lengths = [100, 400, 1600]
+    one = true + rng.standard_normal((3, 1, 2)) / np.sqrt(np.array(lengths))[:, None, None]
+    est = np.repeat(one, 3, axis=1)  # three identical realisations per length
+    study = hbjax.Study.from_estimates(
+        lengths, ["a1", "b1"], true, est, np.zeros((3, 3), int), keep_estimates=False,
+        compile_seconds=np.zeros(3), run_seconds=np.zeros(3), realisations=3,
+        noise_std=0.0, estimator="giri", noise="white", n_devices=1, chunk_size=1)
+    rmse = np.abs(one[:, 0, :] - true)
+    expected = [np.polyfit(np.log(lengths), np.log(rmse[:, p]), 1)[0] for p in range(2)]
+    np.testing.assert_allclose(study.slope, expected, rtol=1e-12)
+    assert np.all(np.isnan(study.slope_stderr)) and np.all(np.isnan(study.slope_ci))

@@ -159,7 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
         sub, "identify", parents=[debug],
         help="identify a model from recordings",
         description="Identification methods: `giri` (the paper's closed form on its three "
-        "experiments) and `fit` (multi-start prediction-error fit on any recordings).",
+        "experiments) and `fit` (multi-start fit on any recordings, by default of the free-run "
+        "(output-error) criterion).",
         example="hbjax identify giri --design n=2,m=3,h_m=4 y1.csv y2.csv y3.csv --out model.json",
     )
     methods = identify.add_subparsers(dest="method", required=True, metavar="METHOD")

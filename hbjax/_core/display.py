@@ -131,7 +131,7 @@ FIGURES = (
     ("stats.initial_cost", "initial cost"),
     ("stats.steps", "optimiser steps"),
     ("stats.samples", "residuals"),
-    ("hit_rate", "starts reaching the best cost"),
+    ("hit_rate", "fraction of starts reaching the best cost"),
     ("best_index", "best start"),
     ("offset", "offset ybar1, eq. (17)"),
     ("gap", "gap P2*(-h_m) - P1*(h_m) (1 expected)"),

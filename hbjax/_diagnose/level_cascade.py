@@ -27,7 +27,7 @@ from .._core.buckets import bucket_length, padded
 from .._core.initial import InitialState
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import play, simulate
-from .._misc import is_traced
+from .._misc import check_finite, is_traced
 from .._misc import jsonable as _jsonable
 from . import residual_tests as rt
 from .decide import BIC_MARGIN, DM_Z, over_constant
@@ -101,6 +101,17 @@ def _upper_step(p, x1, w_t):
     return filled - spill, k2 * out1 + r * spill, spill
 
 
+def _finite_number(value, name: str) -> float | None:
+    """``value`` as a float, refused unless it is one finite real number (a model file read
+    back may hold text, a list or NaN there); ``None`` for a traced value."""
+    if is_traced(value):
+        return None
+    arr = np.asarray(value) if not isinstance(value, (str, bytes, dict)) else None
+    if arr is None or arr.ndim != 0 or arr.dtype.kind not in "iuf" or not np.isfinite(arr):
+        raise ValueError(f"`{name}` must be a finite real number, got {value!r}.")
+    return float(arr)
+
+
 class LevelCascade(AbstractModel):
     """The measured output ``y`` as the lower of two stores in series (see
     :func:`_levels` for the equations), read through the sensor's range ``[lower,
@@ -127,10 +138,18 @@ class LevelCascade(AbstractModel):
         if jnp.shape(self.params) != (9,) or jnp.shape(self.levels0) != (2,):
             raise ValueError(f"`params` must have shape (9,) and `levels0` shape (2,), got "
                              f"{jnp.shape(self.params)} and {jnp.shape(self.levels0)}.")
+        for name in ("params", "levels0"):
+            if not is_traced(getattr(self, name)):
+                check_finite(getattr(self, name), name)
         for name in ("w_scale", "y_scale"):
-            value = getattr(self, name)
-            if not is_traced(value) and not (math.isfinite(float(value)) and float(value) > 0):
+            value = _finite_number(getattr(self, name), name)
+            if value is not None and not value > 0:
                 raise ValueError(f"`{name}` must be finite and positive, got {value}.")
+        _finite_number(self.y_center, "y_center")
+        lower, upper = (None if x is None else _finite_number(x, name)
+                        for x, name in ((self.lower, "lower"), (self.upper, "upper")))
+        if lower is not None and upper is not None and not lower < upper:
+            raise ValueError(f"the sensor's range needs `lower` < `upper`, got {lower} and {upper}.")
 
     def _feed(self, v, u0):
         w = v if self.feed == "input" else play_trajectory(self.base.backlash, v, u0)

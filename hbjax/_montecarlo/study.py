@@ -16,8 +16,9 @@ def _slope_fit(lengths, rmse, mse_var):
     ``var(log RMSE) ~ var(e^2) / (4 R MSE^2)``), so the interval reflects how many
     realisations were run: a consistent, ``sqrt(N)``-rate estimator gives slopes near -1/2.
     Returns ``(slope, stderr)``, NaN where fewer than two lengths have a positive RMSE;
-    where some length has no Monte Carlo variance (fewer than two valid realisations), the
-    slope is the unweighted fit and ``stderr`` is NaN: one draw measures no uncertainty.
+    where some length has no Monte Carlo variance (fewer than two valid realisations, or
+    realisations all alike, as without noise), the slope is the unweighted fit and
+    ``stderr`` is NaN: draws that do not differ measure no uncertainty.
     """
     n_len, n_par = rmse.shape
     slope = np.full(n_par, np.nan)
@@ -28,12 +29,12 @@ def _slope_fit(lengths, rmse, mse_var):
         if ok.sum() < 2 or np.ptp(x[ok]) == 0:
             continue
         y = np.log(rmse[ok, p])
-        if not np.all(np.isfinite(mse_var[ok, p])):
+        if not np.all(np.isfinite(mse_var[ok, p]) & (mse_var[ok, p] > 0)):
+            # (a zero variance would give an infinite weight and a zero-width interval)
             slope[p] = np.polyfit(x[ok], y, 1)[0]
             continue
         var_log = mse_var[ok, p] / (4.0 * rmse[ok, p] ** 4)
-        # A zero variance (e.g. one valid realisation) must not give an infinite weight.
-        w = 1.0 / np.maximum(var_log, 1e-300)
+        w = 1.0 / var_log
         xw = np.sum(w * x[ok]) / np.sum(w)
         sxx = np.sum(w * (x[ok] - xw) ** 2)
         slope[p] = np.sum(w * (x[ok] - xw) * y) / sxx
