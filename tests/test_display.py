@@ -126,6 +126,19 @@ def test_batched_result_codes_are_counted(refined):
     codes = jnp.asarray([refined.result._value] * 3)
     batched = eqx.tree_at(lambda r: r.result._value, refined, codes)
     assert "result={'successful': 3}" in repr(batched)
+    assert "result: {'successful': 3}" in str(batched.summary())
+
+
+def test_a_batched_closed_form_summary_counts_its_codes(design):
+    """identify_giri under vmap: its batched `.message` is an array of strings, which
+    summary() once printed as the result line (`result: ['' '']`)."""
+    model = hbjax.default_system()
+    N = 1200
+    vs = [design.constant_input(N), design.binary_input(N), design.staircase_input(N)]
+    noise = 0.01 * jax.random.normal(jax.random.key(2), (2, N))
+    ys = [jnp.stack([hbjax.simulate(model, v, e) for e in noise]) for v in vs]
+    batched = jax.vmap(lambda a, b, c: hbjax.identify_giri(design, a, b, c, throw=False))(*ys)
+    assert "result: {'successful': 2}" in str(batched.summary())
 
 
 def test_giri_and_crlb_summaries(design):

@@ -195,3 +195,32 @@ def test_estimate_initial_state_takes_a_recording(system):
     a, b = hbjax.estimate_initial_state(model, rec), hbjax.estimate_initial_state(model, v, y)
     np.testing.assert_array_equal(np.asarray(a.y0), np.asarray(b.y0))
     assert float(a.u0) == float(b.u0)
+
+
+def test_decimating_a_detrended_record_without_dt_restores_the_same_trend():
+    """Without dt the time axis counts samples, and the decimated record counts its own:
+    the removed trend is carried over to that axis (restoring it was 5.9 off)."""
+    k = np.arange(400.0)
+    rec = hbjax.Recording(0.01 * k + np.sin(k / 9), 3 - 0.02 * k + np.cos(k / 7)).slice(40)
+    for kind in ("mean", "linear"):
+        kept = rec.detrend(kind).decimate(4)
+        np.testing.assert_allclose(kept.trend.restore(kept).y, rec.decimate(4).y, atol=1e-12)
+        np.testing.assert_allclose(kept.trend.restore(kept).v, rec.decimate(4).v, atol=1e-12)
+
+
+def test_a_frame_keeps_its_output_and_its_sample_origin():
+    clash = hbjax.Recording([1.0, 2.0], [3.0, 4.0], channels={"y": [7.0, 8.0]})
+    with pytest.raises(ValueError, match="channel name 'y' is the frame's output column"):
+        clash.to_dataframe()
+    rec = hbjax.Recording(np.arange(100.0), np.arange(100.0) ** 0.5).slice(50)
+    back = hbjax.Recording.from_dataframe(rec.to_dataframe(), input="v", output="y")
+    assert back.t0 == 50.0 and back.dt is None
+    np.testing.assert_array_equal(back.t, rec.t)
+
+
+def test_line_styles_reach_every_panel():
+    rec = hbjax.Recording(np.arange(50.0), np.arange(50.0), channels={"w": np.ones(50)})
+    for kwargs in ({"lw": 3}, {"linewidth": 3}):
+        axes = hbjax.plot.plot_recording(rec, **kwargs)
+        assert [ax.lines[0].get_linewidth() for ax in axes] == [3.0, 3.0, 3.0]
+    assert [ax.lines[0].get_linewidth() for ax in hbjax.plot.plot_recording(rec)] == [1.0] * 3

@@ -81,9 +81,14 @@ def std_from_covariance(covariance):
 
 def message_of(result) -> str:
     """``result.message``, or the result codes when they are batched or traced."""
+    value = getattr(getattr(result, "result", None), "_value", None)
+    if value is not None and (isinstance(value, jax.core.Tracer) or np.ndim(value) > 0):
+        # batched or traced codes have no single message (a batch's `.message` may even
+        # answer with the text of an array of messages): the codes are counted instead
+        return figure_text(result.result)
     try:
         return str(result.message)
-    except Exception:  # batched or traced codes have no single message
+    except Exception:  # a result kind whose message cannot be read here: its codes
         return figure_text(result.result)
 
 

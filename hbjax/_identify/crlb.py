@@ -45,7 +45,13 @@ class CRLBResult(eqx.Module):
         `names` defaults to ``theta1, theta2, ...`` (pass :func:`hbjax.param_names`)."""
         std = display.std_from_covariance(self.covariance)
         p = self.covariance.shape[-1]
+        if isinstance(names, (str, bytes)):  # iterable, but each character would be a name
+            raise TypeError(f"`names` must be a list of {p} parameter names, got the string "
+                            f"{names!r}.")
         names = [f"theta{k + 1}" for k in range(p)] if names is None else list(names)
+        if len(names) != p:
+            raise ValueError(f"`names` must hold one name per parameter ({p}), got "
+                             f"{len(names)}.")
         fisher = display.concrete(self.fisher)
         diag = None if fisher is None else np.diagonal(fisher, axis1=-2, axis2=-1)
         table = display.parameter_table(names, std, header="std bound",

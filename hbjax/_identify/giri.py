@@ -101,6 +101,9 @@ def normalise(model: Hammerstein, h_m) -> Hammerstein:
     """
     if not isinstance(model, Hammerstein):
         raise TypeError(f"`model` must be an hbjax.Hammerstein, got {type(model).__name__}.")
+    if isinstance(h_m, (bool, np.bool_)) or getattr(h_m, "dtype", None) == bool:
+        # (signals promote booleans; an amplitude of True is a mistake)
+        raise TypeError(f"`h_m` must be a real number, got {h_m!r}.")
     h_m = as_float_array(h_m, "h_m", dtype=jnp.float64)
     if h_m.ndim != 0:
         raise ValueError(f"`h_m` must be a scalar, got shape {tuple(h_m.shape)}.")

@@ -247,7 +247,16 @@ def decimate(rec, k: int):
         return zero_phase_filter(x, h)[::k]
 
     dt = None if rec.dt is None else rec.dt * k
-    return dataclasses.replace(rec, v=down(rec.v), y=down(rec.y), dt=dt,
+    trend = rec.trend
+    if rec.dt is None and trend is not None:
+        # without dt the time axis counts samples: the kept sample j, at t0 + j now, was at
+        # t0 + k j, so the removed trend is re-expressed on the new axis to restore the same
+        # values
+        t0 = rec.t0
+        trend = Trend(trend.kind, trend.v_offset + trend.v_slope * t0 * (1 - k),
+                      trend.v_slope * k, trend.y_offset + trend.y_slope * t0 * (1 - k),
+                      trend.y_slope * k)
+    return dataclasses.replace(rec, v=down(rec.v), y=down(rec.y), dt=dt, trend=trend,
                                channels={n: down(x) for n, x in rec.channels.items()})
 
 
@@ -332,6 +341,10 @@ def from_dataframe(cls, df, *, input, output, channels=None, dt=None, time=None,
             for n, c in channels.items()}
     t0 = 0.0
     t = _real_column(df, ctime, "time") if ctime is not None else _index_times(df.index)
+    if t is None and ctime is None and dt is None and df.index.name == "sample" \
+            and np.issubdtype(df.index.dtype, np.integer) and len(df.index):
+        # a frame of to_dataframe without dt: its index counts samples from the record's t0
+        t0 = float(df.index[0])
     if t is not None and len(t) >= 2:
         t0 = float(t[0])
         if dt is None:
@@ -355,6 +368,11 @@ def to_dataframe(rec):
     """Columns ``v``, ``y`` and the channels; the index is ``t`` (seconds) when ``dt`` is
     known, else ``sample``."""
     pd = _pandas()
+    for taken in ("v", "y"):
+        if taken in rec.channels:
+            role = "input" if taken == "v" else "output"
+            raise ValueError(f"channel name {taken!r} is the frame's {role} column: rename "
+                             f"the channel (`channels`) before to_dataframe.")
     data = {"v": rec.v, "y": rec.y, **dict(rec.channels)}
     name = "t" if rec.dt is not None else "sample"
     index = pd.Index(rec.t if rec.dt is not None else rec.t.astype(np.int64), name=name)

@@ -47,8 +47,10 @@ def plot_recording(rec, *, channels=True, axes=None, **line_kwargs):
                                sharex=True, squeeze=False)
         axes = axes[:, 0]
     t, label = time_axis(len(rec), rec.dt, rec.t0)
+    # every panel drawn alike (a width popped inside the loop reached the first one only)
+    style = line_kwargs if {"lw", "linewidth"} & set(line_kwargs) else {"lw": 1, **line_kwargs}
     for ax, (name, x) in zip(axes, signals):
-        ax.plot(t, x, lw=line_kwargs.pop("lw", 1), **line_kwargs)
+        ax.plot(t, x, **style)
         ax.set_ylabel(name)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel(label)
