@@ -390,38 +390,23 @@ def test_an_rbg_key_is_refused_naming_key(system, design):
         _study(system, design, key=jax.random.key(3, impl="rbg"))
 
 
-def test_one_realisation_gives_no_slope_interval():
-    """One draw per length measures no Monte Carlo uncertainty: the slope is the plain fit
-    and its interval is NaN (it was a zero-width interval)."""
+@pytest.mark.parametrize("realisations", [1, 3])
+def test_draws_that_do_not_differ_give_no_slope_interval(realisations):
+    """One draw per length, or several identical ones (no noise: every draw the same
+    record), measure no Monte Carlo uncertainty: the slope is the plain fit and its
+    interval NaN (it was a zero-width interval: an infinite weight)."""
     rng = np.random.default_rng(0)
     true = np.array([0.5, 2.0])
     lengths = [100, 400, 1600]
-    est = true + rng.standard_normal((3, 1, 2)) / np.sqrt(np.array(lengths))[:, None, None]
-    study = hbjax.Study.from_estimates(
-        lengths, ["a1", "b1"], true, est, np.zeros((3, 1), int), keep_estimates=False,
-        compile_seconds=np.zeros(3), run_seconds=np.zeros(3), realisations=1,
-        noise_std=0.1, estimator="giri", noise="white", n_devices=1, chunk_size=1)
-    rmse = np.abs(est[:, 0, :] - true)
-    expected = [np.polyfit(np.log(lengths), np.log(rmse[:, p]), 1)[0] for p in range(2)]
-    np.testing.assert_allclose(study.slope, expected, rtol=1e-12)
-    assert np.all(np.isnan(study.slope_stderr)) and np.all(np.isnan(study.slope_ci))
-    assert np.all(np.isnan(study.std))
-
-
-def test_identical_realisations_give_no_slope_interval():
-    """Realisations that do not differ (no noise: every draw the same record) measure no
-    Monte Carlo uncertainty either: NaN interval, not a zero-width one from an infinite
-    weight."""
-    rng = np.random.default_rng(1)
-    true = np.array([0.5, 2.0])
-    lengths = [100, 400, 1600]
     one = true + rng.standard_normal((3, 1, 2)) / np.sqrt(np.array(lengths))[:, None, None]
-    est = np.repeat(one, 3, axis=1)  # three identical realisations per length
+    est = np.repeat(one, realisations, axis=1)
     study = hbjax.Study.from_estimates(
-        lengths, ["a1", "b1"], true, est, np.zeros((3, 3), int), keep_estimates=False,
-        compile_seconds=np.zeros(3), run_seconds=np.zeros(3), realisations=3,
-        noise_std=0.0, estimator="giri", noise="white", n_devices=1, chunk_size=1)
+        lengths, ["a1", "b1"], true, est, np.zeros((3, realisations), int),
+        keep_estimates=False, compile_seconds=np.zeros(3), run_seconds=np.zeros(3),
+        realisations=realisations, noise_std=0.1 if realisations == 1 else 0.0,
+        estimator="giri", noise="white", n_devices=1, chunk_size=1)
     rmse = np.abs(one[:, 0, :] - true)
     expected = [np.polyfit(np.log(lengths), np.log(rmse[:, p]), 1)[0] for p in range(2)]
     np.testing.assert_allclose(study.slope, expected, rtol=1e-12)
     assert np.all(np.isnan(study.slope_stderr)) and np.all(np.isnan(study.slope_ci))
+    assert np.all(np.isnan(study.std)) == (realisations == 1)
