@@ -74,6 +74,10 @@ def test_new_length_in_a_compiled_bucket_compiles_no_starts_and_reports_its_own_
     # max_steps=19: a program no other test compiles, so the first call must trace it.
     kw = dict(na=s["na"], nb=s["nb"], m=3, key=jax.random.key(0), starts=8, max_steps=19,
               criterion="prediction", progress=False, throw=False)
+    # In one full-suite run the second call retraced in a worker that had run other test
+    # files before (never with this file alone); not pinned down, JAX's bounded in-memory
+    # trace caches are the likely cause: the test starts from empty ones
+    jax.clear_caches()
     jax.monitoring.register_event_duration_secs_listener(listen)
     try:
         hbjax.fit(recs[0], **kw)
