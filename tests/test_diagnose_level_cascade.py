@@ -108,8 +108,8 @@ def test_model_file_checked_on_load(tmp_path):
     v = np.sin(np.arange(300) / 20.0)
     np.testing.assert_array_equal(np.asarray(hbjax.simulate(hbjax.load_model(path), v)),
                                   np.asarray(hbjax.simulate(model, v)))
-    for field, value, message in (("feed", "os.system", "`feed` must be one of"),
-                                  ("y_scale", -1.0, "`y_scale` must be finite and positive")):
+    for field, value, message in (("feed", "os.system", "`LevelCascade.feed` must be one of"),
+                                  ("y_scale", -1.0, "`LevelCascade.y_scale` must be > 0")):
         doc = json.loads(path.read_text())
         doc["model"]["fields"][field] = value
         bad = tmp_path / f"bad_{field}.json"

@@ -289,15 +289,16 @@ def test_effect_files_with_invalid_parameters_give_model_file_errors(
 @pytest.mark.parametrize(
     "field, value, match",
     [
-        ("lower", "abc", r"`lower` must be a finite real number, got 'abc'"),
-        ("lower", {"list": [1, 2]}, r"`lower` must be a finite real number"),
-        ("upper", {"float": "nan"}, r"`upper` must be a finite real number"),
-        ("lower", 5.0, r"needs `lower` < `upper`, got 5.0 and -5.0"),
-        ("y_center", "abc", r"`y_center` must be a finite real number"),
-        ("y_center", {"float": "inf"}, r"`y_center` must be a finite real number"),
-        ("w_scale", "abc", r"`w_scale` must be a finite real number"),
+        ("lower", "abc", r"`LevelCascade.lower` must be a numeric array, got str"),
+        ("lower", {"list": [1, 2]}, r"`LevelCascade.lower` must be a scalar, got shape \(2,\)"),
+        ("upper", {"float": "nan"}, r"`LevelCascade.upper` must be finite or None, got nan"),
+        ("lower", 5.0, r"needs `LevelCascade.lower` < `LevelCascade.upper`, got 5.0 and -5.0"),
+        ("y_center", "abc", r"`LevelCascade.y_center` must be a numeric array"),
+        ("y_center", {"float": "inf"}, r"`LevelCascade.y_center` must be finite"),
+        ("w_scale", "abc", r"`LevelCascade.w_scale` must be a numeric array"),
+        ("w_scale", 0.0, r"`LevelCascade.w_scale` must be > 0, got 0.0"),
         ("params", {"array": [0.1] * 8 + [{"float": "nan"}], "dtype": "float64", "shape": [9],
-                    "kind": "jax"}, r"`params` contains NaN or inf"),
+                    "kind": "jax"}, r"`LevelCascade.params` must be finite"),
     ],
 )
 def test_level_cascade_files_with_invalid_values_give_model_file_errors(

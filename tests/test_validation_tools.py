@@ -390,10 +390,10 @@ def test_bad_input_names_the_argument(system):
     # a start estimated from as many samples as it has numbers fits any model: refused
     wrong = hbjax.Hammerstein(hbjax.Backlash(c1=[5.0, -3.0, 0.2], c2=[7.0, -3.0, 0.2]),
                               hbjax.ARX(a=[0.9, 0.3], b=[-2.0, 0.1]))
-    with pytest.raises(ValueError, match="`v`, `y`: 2 samples are too few .*`model`"):
+    with pytest.raises(ValueError, match=r"`y` holds 2 samples, too few for .*\(`model`\)"):
         hbjax.compare(wrong, v[:2], y[:2])
     higher = hbjax.Hammerstein(wrong.backlash, hbjax.ARX(a=[0.5, 0.1, 0.1], b=[1.0, 0.1]))
-    with pytest.raises(ValueError, match=r"too few to judge `model\[1\]`"):
+    with pytest.raises(ValueError, match=r"`y` holds 7 samples.*= 3 \(`model\[1\]`\)"):
         hbjax.compare([model, higher], v[:7], y[:7])
     assert np.isfinite(hbjax.compare(wrong, v[:2], y[:2], initial_state="zero").fit)
     # an order beyond the branches' cap names `m`, before any structure is fitted
@@ -401,7 +401,8 @@ def test_bad_input_names_the_argument(system):
         hbjax.fit((v, y), na=1, nb=1, m=65, key=key, progress=False)
     with pytest.raises(ValueError, match="`m` must be at most 64"):
         hbjax.select_structure((v, y), na=1, nb=1, m=[2, 65], key=key, progress=False)
-    with pytest.raises(ValueError, match="`validation` record 0 has 5 samples"):
+    with pytest.raises(ValueError, match=r"`validation` holds 5 samples, too few for "
+                                         r"initial_state='estimate'"):
         hbjax.select_structure((v, y), na=[1, 2], nb=1, m=2, key=key, progress=False,
                                validation=(v[:5], y[:5]))
 

@@ -33,6 +33,8 @@ import html
 import jax
 import numpy as np
 
+from .._misc import is_traced
+
 from .reprs import (  # noqa: F401 (re-exported: results print through ``display``)
     MAX_ITEMS, Z95, concrete, format_array, format_number, format_result_code, pformat,
     result_message,
@@ -82,7 +84,7 @@ def std_from_covariance(covariance):
 def message_of(result) -> str:
     """``result.message``, or the result codes when they are batched or traced."""
     value = getattr(getattr(result, "result", None), "_value", None)
-    if value is not None and (isinstance(value, jax.core.Tracer) or np.ndim(value) > 0):
+    if value is not None and (is_traced(value) or np.ndim(value) > 0):
         # batched or traced codes have no single message (a batch's `.message` may even
         # answer with the text of an array of messages): the codes are counted instead
         return figure_text(result.result)

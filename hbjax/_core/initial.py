@@ -165,6 +165,12 @@ def _estimate(model: Hammerstein, v, y, n=None):
     return InitialState(y0, u_best, jnp.sum(counted(y - y_sim) ** 2))
 
 
+class FreeRunOverflow(ValueError):
+    """A model's free run overflows (an unstable model, assumption A3), met by
+    :func:`estimate_initial_state` or :func:`hbjax.compare`: a ``ValueError`` that callers
+    with a fallback (another start, a ``-inf`` score) can tell apart from a bad argument."""
+
+
 def estimate_initial_state(model: Hammerstein, v, y=None) -> InitialState:
     """Estimate the initial state (output lags ``y0`` and play state ``u0``) of a
     recording for a given model, as MATLAB's ``'InitialCondition', 'e'``.
@@ -206,7 +212,7 @@ def estimate_initial_state(model: Hammerstein, v, y=None) -> InitialState:
     if not any(is_traced(x) for x in (v, y, state.cost)) and not bool(
             jnp.isfinite(state.cost)):
         # the least squares of a free run that overflows: nothing to return but NaN
-        raise ValueError(f"the initial state cannot be estimated: {unstable_why(model)}.")
+        raise FreeRunOverflow(f"the initial state cannot be estimated: {unstable_why(model)}.")
     return state
 
 

@@ -14,13 +14,15 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from .._misc import is_traced
+
 Z95 = 1.959963984540054  # two-sided 95% normal quantile
 MAX_ITEMS = 12  # arrays with more elements print as shape and range
 
 
 def concrete(x) -> np.ndarray | None:
     """``x`` as a NumPy array, or ``None`` when it is traced (inside jit/vmap/grad)."""
-    if x is None or isinstance(x, jax.core.Tracer):
+    if x is None or is_traced(x):
         return None
     try:
         return np.asarray(x)

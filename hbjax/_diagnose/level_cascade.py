@@ -27,10 +27,10 @@ from .._core.buckets import bucket_length, padded
 from .._core.initial import InitialState
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import play, simulate
-from .._misc import check_finite, is_traced
 from .._misc import jsonable as _jsonable
 from . import residual_tests as rt
 from .decide import BIC_MARGIN, DM_Z, over_constant
+from .effect_base import EffectConstraint
 from .explain import rounded
 from .result import Finding
 
@@ -101,17 +101,6 @@ def _upper_step(p, x1, w_t):
     return filled - spill, k2 * out1 + r * spill, spill
 
 
-def _finite_number(value, name: str) -> float | None:
-    """``value`` as a float, refused unless it is one finite real number (a model file read
-    back may hold text, a list or NaN there); ``None`` for a traced value."""
-    if is_traced(value):
-        return None
-    arr = np.asarray(value) if not isinstance(value, (str, bytes, dict)) else None
-    if arr is None or arr.ndim != 0 or arr.dtype.kind not in "iuf" or not np.isfinite(arr):
-        raise ValueError(f"`{name}` must be a finite real number, got {value!r}.")
-    return float(arr)
-
-
 class LevelCascade(AbstractModel):
     """The measured output ``y`` as the lower of two stores in series (see
     :func:`_levels` for the equations), read through the sensor's range ``[lower,
@@ -132,24 +121,26 @@ class LevelCascade(AbstractModel):
     feed: str = eqx.field(static=True, default="input")
 
     def __check_init__(self):
-        # also what a model file read back must satisfy (hbjax.load_model)
+        # Held to the effects' rules (the model-file reader runs this too): a file with
+        # text, a list or NaN in a field is refused here, naming the field.
         if self.feed not in FEEDS:
-            raise ValueError(f"`feed` must be one of {FEEDS}, got {self.feed!r}.")
-        if jnp.shape(self.params) != (9,) or jnp.shape(self.levels0) != (2,):
-            raise ValueError(f"`params` must have shape (9,) and `levels0` shape (2,), got "
-                             f"{jnp.shape(self.params)} and {jnp.shape(self.levels0)}.")
-        for name in ("params", "levels0"):
-            if not is_traced(getattr(self, name)):
-                check_finite(getattr(self, name), name)
-        for name in ("w_scale", "y_scale"):
-            value = _finite_number(getattr(self, name), name)
-            if value is not None and not value > 0:
-                raise ValueError(f"`{name}` must be finite and positive, got {value}.")
-        _finite_number(self.y_center, "y_center")
-        lower, upper = (None if x is None else _finite_number(x, name)
-                        for x, name in ((self.lower, "lower"), (self.upper, "upper")))
+            raise ValueError(f"`LevelCascade.feed` must be one of {FEEDS}, got {self.feed!r}.")
+        if not isinstance(self.base, Hammerstein):
+            raise TypeError("`LevelCascade.base` must be an hbjax.Hammerstein, got "
+                            f"{type(self.base).__name__}.")
+        rules = {"params": EffectConstraint(shape=(9,)),
+                 "levels0": EffectConstraint(shape=(2,)),
+                 "w_scale": EffectConstraint(positive=True),
+                 "y_scale": EffectConstraint(positive=True),
+                 "y_center": EffectConstraint(),
+                 "lower": EffectConstraint(optional=True),
+                 "upper": EffectConstraint(optional=True)}
+        values = {field: rule.check(f"LevelCascade.{field}", getattr(self, field), self.base)
+                  for field, rule in rules.items()}
+        lower, upper = values["lower"], values["upper"]
         if lower is not None and upper is not None and not lower < upper:
-            raise ValueError(f"the sensor's range needs `lower` < `upper`, got {lower} and {upper}.")
+            raise ValueError("the sensor's range needs `LevelCascade.lower` < "
+                             f"`LevelCascade.upper`, got {lower.item()} and {upper.item()}.")
 
     def _feed(self, v, u0):
         w = v if self.feed == "input" else play_trajectory(self.base.backlash, v, u0)

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._core import display
-from .._core.initial import InitialState, estimate_initial_state, injection, unstable_why
+from .._core.initial import (FreeRunOverflow, InitialState, estimate_initial_state, injection,
+                             unstable_why)
 from .._core.model import AbstractModel, Hammerstein, play_trajectory
 from .._core.simulate import predict, simulate
 from .._diagnose.residual_tests import fit_percent_unchecked
@@ -15,7 +16,8 @@ from .._misc import (MAX_MAGNITUDE, as_float_array, check_magnitude, float_dtype
                      lagged, no_spread, same_length)
 from .recordings import as_input_output
 from .refine_result import AbstractRefinement
-from .stable import INITIAL_STATES, check_initial_state, start_response  # noqa: F401
+from .stable import (INITIAL_STATES, check_estimated_start, check_initial_state,  # noqa: F401
+                     start_response)
 from .uncertainty import free_run_std
 
 
@@ -438,15 +440,8 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
     if initial_state == "estimate":
         for k, mdl in enumerate(models):
             base = mdl if isinstance(mdl, Hammerstein) else mdl.base
-            start = max(base.arx.na, base.arx.nb) + 1  # the past's equation errors, u0
-            if y_np.shape[0] < 2 * start:
-                # an estimated start that fits as many samples as it has numbers would
-                # call any model a 100 % fit
-                raise ValueError(
-                    f"`v`, `y`: {y_np.shape[0]} samples are too few to judge "
-                    f"{'`model`' if single else f'`model[{k}]`'} with "
-                    f"initial_state='estimate': its estimated start fits up to {start} "
-                    f"numbers; give at least {2 * start} samples, or initial_state='zero'.")
+            check_estimated_start([(y_np, y_np)], base.arx.na, base.arx.nb, initial_state,
+                                  name="y", judged="`model`" if single else f"`model[{k}]`")
     if no_spread(y_np):
         raise ValueError(
             "`y` is constant: the fit 100 (1 - ||y - y_hat|| / ||y - mean(y)||) is undefined "
@@ -459,7 +454,7 @@ def compare(model, v, y=None, *, initial_state: str = "estimate", horizon=None,
             if single:
                 raise
             # name the list entry whose run failed
-            raise ValueError(str(exc).replace("`model`", f"`model[{k}]`")) from exc
+            raise type(exc)(str(exc).replace("`model`", f"`model[{k}]`")) from exc
         fits.append(fit_percent_unchecked(y_np, y_hat))
         rmses.append(float(np.sqrt(np.mean((y_np - y_hat) ** 2))))
         y_hats.append(y_hat)
@@ -485,7 +480,7 @@ def _run(model, covariance, v, y, initial_state, horizon):
         # that overflows offers none, while the predictor may still be finite)
         try:
             free_u0 = estimate_initial_state(model, v, y).u0
-        except ValueError:
+        except FreeRunOverflow:
             free_u0 = 0.0
         state, y_hat, _ = ahead_state(model, v, y, horizon, free_u0)
     else:  # the free run (a horizon as long as the record is one)
@@ -496,13 +491,13 @@ def _run(model, covariance, v, y, initial_state, horizon):
     y_hat = np.asarray(y_hat)
     if not np.all(np.isfinite(y_hat)):
         first = int(np.flatnonzero(~np.isfinite(y_hat))[0])
-        raise ValueError(f"the output of `model` overflows to inf/NaN from sample {first} on: "
+        raise FreeRunOverflow(f"the output of `model` overflows to inf/NaN from sample {first} on: "
                          f"{unstable_why(model)}.")
     peak = float(np.max(np.abs(y_hat)))
     if peak > MAX_MAGNITUDE:
         # finite, but its squared error overflows: the fit would read -inf
         first = int(np.flatnonzero(np.abs(y_hat) > MAX_MAGNITUDE)[0])
-        raise ValueError(f"the output of `model` grows beyond {MAX_MAGNITUDE:.0e} from sample "
+        raise FreeRunOverflow(f"the output of `model` grows beyond {MAX_MAGNITUDE:.0e} from sample "
                          f"{first} on (up to {peak:.3g}), too large for the fit's sums of "
                          f"squares: {unstable_why(model)}.")
     y_std = np.full_like(y_hat, np.nan)

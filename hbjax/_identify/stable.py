@@ -62,22 +62,25 @@ def check_initial_state(initial_state) -> str:
 
 
 def check_estimated_start(recordings, na: int, nb: int, initial_state: str,
-                          name: str = "recordings") -> None:
+                          name: str = "recordings", judged: str = "") -> None:
     """Refuse a record too short to be judged from an estimated start: the start holds
     ``max(na, nb) + 1`` numbers (the past's equation errors and the play state), and a
     record with no more than twice as many samples would be fitted by the start alone and
-    call any model a near-100 % free-run fit (the rule :func:`hbjax.compare` applies)."""
+    call any model a near-100 % free-run fit. The one home of this rule: `fit`, `refine`,
+    `select_structure` (training and validation records) and `compare` call it; `judged`
+    names the model being judged where there are several."""
     if initial_state != "estimate":
         return
     need = 2 * (max(na, nb) + 1)
     for k, (v, _) in enumerate(recordings):
         if int(v.shape[0]) < need:
             tag = f"{name}[{k}]" if len(recordings) > 1 else name
+            of = f" ({judged})" if judged else ""
             raise ValueError(
                 f"`{tag}` holds {int(v.shape[0])} samples, too few for "
-                f"initial_state='estimate' with max(na, nb) = {max(na, nb)}: its estimated "
-                f"start fits up to {need // 2} numbers; give at least {need} samples, or "
-                f"initial_state='zero'.")
+                f"initial_state='estimate' with max(na, nb) = {max(na, nb)}{of}: its "
+                f"estimated start fits up to {need // 2} numbers; give at least {need} "
+                f"samples, or initial_state='zero'.")
 
 
 def a_from_free(zeta: Float[Array, " na"]) -> Float[Array, " na"]:

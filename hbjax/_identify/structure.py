@@ -8,6 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from .._core import display
+from .._core.initial import FreeRunOverflow
 from .._core.model import Hammerstein
 from .._core.progress import check_progress, progress_bar
 from .._core.simulate import predict, simulate
@@ -150,9 +151,7 @@ def _validation_fit(model, validation, initial_state):
     try:
         return float(np.mean([compare(model, v, y, initial_state=initial_state).fit
                               for v, y in validation]))
-    except ValueError as exc:  # an unstable model's free run overflows
-        if "overflows" not in str(exc):
-            raise
+    except FreeRunOverflow:  # an unstable model
         return -np.inf
 
 
@@ -240,12 +239,8 @@ def select_structure(recordings, *, na, nb, m, key, criterion: str = "prediction
         raise ValueError("`rank_by='validation'` needs `validation` records.")
     grid = list(itertools.product(na_list, nb_list, m_list))
     skip = max(na_list[-1], nb_list[-1]) if initial_state == "estimate" else 0
-    for k, (_, y_val) in enumerate(val if initial_state == "estimate" and val else ()):
-        need = 2 * (max(na_list[-1], nb_list[-1]) + 1)  # compare's estimated start
-        if np.asarray(y_val).shape[0] < need:
-            raise ValueError(f"`validation` record {k} has {np.asarray(y_val).shape[0]} "
-                             f"samples; judging orders up to max(na, nb) = "
-                             f"{need // 2 - 1} from an estimated start needs at least {need}.")
+    if val is not None:
+        check_estimated_start(val, na_list[-1], nb_list[-1], initial_state, name="validation")
     check_estimated_start(recs, na_list[-1], nb_list[-1], initial_state)
     short = min(int(np.asarray(y).shape[0]) for _, y in recs)
     if short <= skip + 1:

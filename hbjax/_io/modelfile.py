@@ -36,7 +36,7 @@ import jax
 import numpy as np
 
 from .._core.model import AbstractModel
-from .._misc import check_bool
+from .._misc import check_bool, is_traced
 from .files import atomic_write, check_readable
 from .modeldecode import _decode_module
 from .modeltypes import (
@@ -65,7 +65,7 @@ def _encode(value, where: str):
     if isinstance(value, eqx.Module):
         return _encode_module(value, where)
     if isinstance(value, (jax.Array, np.ndarray)):
-        if isinstance(value, jax.core.Tracer):
+        if is_traced(value):
             raise TypeError(f"cannot save a traced array at `{where}` (save outside jit).")
         arr = np.asarray(value)
         dtype = str(arr.dtype)
