@@ -2,12 +2,34 @@
 named there, with what was expected, rather than failing deep inside matplotlib with an
 attribute or shape error, or drawing an empty plot."""
 
+import functools
+
+import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import FigureBase
 
 from .._core.backlash import Backlash
 from .._misc import as_float_array, is_real_scalar
+
+
+def closes_on_error(figure_function):
+    """Wrap a figure function so that a figure it opened is closed again when it raises
+    (a matplotlib argument it passes through, such as a colour, is checked only while
+    drawing): a failed call leaves no half-drawn figure open in pyplot, to reappear at the
+    next ``plt.show()`` or to accumulate in a notebook."""
+
+    @functools.wraps(figure_function)
+    def drawn(*args, **kwargs):
+        before = set(plt.get_fignums())
+        try:
+            return figure_function(*args, **kwargs)
+        except BaseException:
+            for number in set(plt.get_fignums()) - before:
+                plt.close(number)
+            raise
+
+    return drawn
 
 
 def instance(x, cls, name: str, what: str):

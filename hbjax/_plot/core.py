@@ -16,6 +16,7 @@ def _axes(ax):
     return ax
 
 
+@checks.closes_on_error
 def plot_backlash(backlash, v_range, *, ax=None, label=None, color=None, sweep=True):
     """Draw the branches ``P1`` (rising) and ``P2`` (falling) of the :class:`hbjax.Backlash`
     `backlash` over ``v_range = (lo, hi)`` (finite, ``lo < hi``) and, with ``sweep``, the loop
@@ -42,6 +43,7 @@ def plot_backlash(backlash, v_range, *, ax=None, label=None, color=None, sweep=T
     return ax
 
 
+@checks.closes_on_error
 def plot_staircase(design, backlash, *, periods=2, axes=None):
     """The paper's Figs. 3-4: ``v3`` of the :class:`hbjax.GiriDesign` `design` over
     `periods` (an integer >= 1) periods and the internal signal ``u*`` of the
@@ -67,6 +69,7 @@ def plot_staircase(design, backlash, *, periods=2, axes=None):
     return axes
 
 
+@checks.closes_on_error
 def plot_output(y_measured, y_simulated, *, ax=None, labels=("measured", "simulated"), window=None,
                 dt=None):
     """Measured vs simulated output (1-D records of equal length; optionally only the samples

@@ -31,6 +31,7 @@ def _regime(effect, v, y_sim, u):
     return np.arange(len(v), dtype=float), label
 
 
+@checks.closes_on_error
 def plot_diagnosis(d, *, finding=None, axes=None):
     """Three panels for a :class:`hbjax.Diagnosis`: the nominal simulation residual over
     time with the located windows shaded (held-out part marked); the residual against the

@@ -24,6 +24,7 @@ def _selection(params, names) -> list[int]:
     return [names.index(p) for p in params]
 
 
+@checks.closes_on_error
 def plot_monte_carlo(study, *, params=None, length_index=-1, bins=30, fig=None):
     """Plot a Monte Carlo study.
 

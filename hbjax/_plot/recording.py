@@ -33,6 +33,7 @@ def _channel_names(rec, channels) -> list:
     return list(channels)
 
 
+@checks.closes_on_error
 def plot_recording(rec, *, channels=True, axes=None, **line_kwargs):
     """One panel per signal: the input ``v``, the output ``y`` and (with `channels`, or a
     list of channel names) the extra channels, against time in seconds when ``dt`` is

@@ -12,6 +12,7 @@ from . import checks
 from .recording import time_axis
 
 
+@checks.closes_on_error
 def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwargs):
     """Measured output and each model's output, fit (%) in the legend, as MATLAB's
     ``compare`` figure.
@@ -68,6 +69,7 @@ def plot_compare(result, v=None, y=None, *, ax=None, window=None, **compare_kwar
     return ax
 
 
+@checks.closes_on_error
 def plot_resid(result, v=None, y=None, *, axes=None, lags=None):
     """Residual autocorrelation and cross-correlation with past inputs, each with the 99%
     band, as MATLAB's ``resid`` figure.
