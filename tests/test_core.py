@@ -181,3 +181,27 @@ def test_non_finite_input_under_jit_raises_with_message(system):
         jax.jit(hbjax.simulate)(system, v).block_until_ready()
     with pytest.raises(Exception, match="`v` contains NaN or inf"):
         jax.vmap(hbjax.simulate, in_axes=(None, 1))(system, jnp.stack([v, v], 1)).block_until_ready()
+
+
+@pytest.mark.parametrize("smoothing", [None, 0.1])
+def test_identical_branches_differentiate_as_their_static_map(smoothing):
+    """With ``P1 = P2 = P`` the play operator is the static map ``u(t) = P(v(t))``, whatever
+    the past: its Jacobian in ``v`` is ``diag(P'(v))``, also where the input holds (a tie
+    of ``u(t-1)`` with the band's edge, where a half-and-half split of the derivative was
+    wrong); through ``simulate`` the gradient is the ARX impulse response times ``P'``.
+    Random cubic branches and inputs that hold for runs of samples."""
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        c = rng.normal(size=4)
+        bl = hbjax.Backlash(c, c)
+        v = jnp.asarray(np.repeat(rng.uniform(-2, 2, size=8), rng.integers(1, 4, size=8)))
+        dp = np.polyval(np.polyder(c[::-1]), np.asarray(v))
+        jac = np.asarray(jax.jacfwd(lambda x: hbjax.play(bl, x, smoothing=smoothing))(v))
+        np.testing.assert_allclose(jac, np.diag(dp), atol=1e-12)
+        np.testing.assert_allclose(np.asarray(jax.jacrev(
+            lambda x: hbjax.play(bl, x, smoothing=smoothing))(v)), np.diag(dp), atol=1e-12)
+        model = hbjax.Hammerstein(bl, hbjax.ARX(a=[-0.5], b=[1.0]))
+        grad = np.asarray(jax.grad(lambda x: hbjax.simulate(model, x)[-1])(v))
+        T = v.shape[0]
+        impulse = np.array([0.5 ** (T - 2 - s) if s <= T - 2 else 0.0 for s in range(T)])
+        np.testing.assert_allclose(grad, impulse * dp, atol=1e-12)

@@ -42,8 +42,16 @@ def power_columns(v: Float[Array, " time"], m: int) -> Float[Array, "time m"]:
 def play_step(u_prev, low, high):
     """One sample of the play operator, ``u(t) = min(max(u(t-1), low(t)), high(t))``
     (NOTES.md): the one expression of the clamp, shared by :meth:`Backlash.step`,
-    :func:`play_sources` and the diagnosis kernel's extended recursion."""
-    return jnp.minimum(jnp.maximum(u_prev, low), high)
+    :func:`play_sources` and the diagnosis kernel's extended recursion.
+
+    The values are ``min``/``max``'s (NaN propagates); at a tie the derivative is taken
+    through the band edge at ``t`` rather than split half and half with ``u(t-1)`` as
+    ``jnp.maximum`` does: with identical branches (``P1 = P2``, a static nonlinearity) and
+    a held input, ``u(t) = P(v(t))`` whatever the past, and only the edge carries its
+    derivative ``P'(v(t))``; at a real edge it is the derivative for a rising ``v(t)``
+    there, one of the kink's one-sided derivatives."""
+    raised = jnp.where(u_prev == low, low, jnp.maximum(u_prev, low))
+    return jnp.where(raised == high, high, jnp.minimum(raised, high))
 
 
 def clamp_edges(u_prev, low, high):

@@ -31,7 +31,9 @@ from .backlash import Backlash
 def _smooth_max(a, b, tau, positive):
     safe = jnp.where(positive, tau, jnp.ones_like(tau))
     soft = safe * jnp.logaddexp(a / safe, b / safe)
-    return jnp.where(positive, soft, jnp.maximum(a, b))
+    # the exact max where the band has no width: at a tie through `b` (the band edge), as
+    # the exact operator (hbjax._core.backlash.play_step)
+    return jnp.where(positive, soft, jnp.where(a == b, b, jnp.maximum(a, b)))
 
 
 def _resolved(tau, a, b):
