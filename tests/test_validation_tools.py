@@ -489,3 +489,19 @@ def test_records_too_short_for_an_estimated_start_are_refused_not_scored_100(sys
     with pytest.raises(ValueError, match=r"`recordings\[1\]` holds 3 samples"):
         hbjax.select_structure([(v, y), (v[:3], y[:3])], na=[1, 2], nb=2, m=3,
                                key=jax.random.key(0), progress=False)
+
+
+def test_resid_leaves_independence_untested_on_an_input_that_never_varies(system):
+    """A constant input has no cross-correlation to test (the input's autocorrelation
+    matrix has rank 0): the p-value is NaN and the summary says so, not p = 1; the verdict
+    rests on whiteness and the mean, which still reject a model whose output is biased."""
+    model, _, rng = system
+    v = np.full(400, 3.0)
+    y = np.asarray(hbjax.simulate(model, v, 0.1 * rng.normal(size=400)))
+    r = hbjax.resid(model, v, y)
+    assert np.isnan(r.p_independence) and r.p_whiteness > 0.01
+    assert "not tested: the input does not vary" in str(r.summary())
+    assert r.passed == (r.p_mean >= 0.01)
+    biased = hbjax.Hammerstein(model.backlash, hbjax.ARX(a=model.arx.a, b=1.5 * model.arx.b))
+    r_biased = hbjax.resid(biased, v, y)
+    assert np.isnan(r_biased.p_independence) and r_biased.p_mean < 1e-6 and not r_biased.passed

@@ -30,13 +30,15 @@ class ResidualAnalysis(eqx.Module):
       its chi-square p-value (``lags`` degrees of freedom).
     - `independence`, `p_independence`: ``N r^T R_v^+ r`` for the cross-correlations ``r``
       (``R_v``: the input's autocorrelation matrix, which correlates them for a coloured
-      input) and its chi-square p-value (degrees of freedom: rank of ``R_v``).
+      input) and its chi-square p-value (degrees of freedom: rank of ``R_v``); NaN where
+      the input does not vary (rank 0: there is no cross-correlation to test).
     - `mean`, `p_mean`: the residuals' mean and the two-sided p-value of its z-score
       ``mean / (std / sqrt(N))`` (a bias: the correlations above are of the de-meaned
       residuals and cannot see one).
     - `skip`, `lags`.
 
-    ``passed`` is true when none of the three p-values is below 0.01.
+    ``passed`` is true when none of the three p-values is below 0.01 (an untestable
+    independence, NaN, does not reject; the summary says it was not tested).
     """
 
     residuals: np.ndarray
@@ -55,7 +57,7 @@ class ResidualAnalysis(eqx.Module):
 
     @property
     def passed(self) -> bool:
-        return bool(self.p_whiteness >= 0.01 and self.p_independence >= 0.01
+        return bool(self.p_whiteness >= 0.01 and not self.p_independence < 0.01
                     and self.p_mean >= 0.01)
 
     def summary(self) -> str:
@@ -68,7 +70,9 @@ class ResidualAnalysis(eqx.Module):
             (f"  whiteness    : {out_a}/{self.lags} autocorrelations outside the band, "
             f"Ljung-Box Q = {self.ljung_box:.2f}, p = {self.p_whiteness:.3g}"),
             (f"  independence : {out_x}/{self.lags + 1} cross-correlations with past inputs "
-            f"outside the band, statistic {self.independence:.2f}, p = {self.p_independence:.3g}"),
+            f"outside the band, statistic {self.independence:.2f}, p = {self.p_independence:.3g}"
+             if not math.isnan(self.p_independence) else
+             "  independence : not tested: the input does not vary (no cross-correlation)"),
             (f"  mean         : {self.mean:.4g} "
              f"({self._mean_z():+.2f} standard errors), p = {self.p_mean:.3g}"),
             f"  {verdict}",
@@ -145,6 +149,6 @@ def resid(model: AbstractModel, v, y=None, *, lags: int = 25,
     p_mean = math.erfc(abs(mean) / (sd / math.sqrt(n)) / math.sqrt(2.0)) if sd > 0 else (
         1.0 if mean == 0.0 else 0.0)
     return ResidualAnalysis(e, r_e, r_x, Z99 / math.sqrt(n), q, float(chi2_sf(q, lags)), stat,
-                            float(chi2_sf(stat, dof)) if dof else 1.0, mean, p_mean, lags,
+                            float(chi2_sf(stat, dof)) if dof else math.nan, mean, p_mean, lags,
                             skip, dt)
 
