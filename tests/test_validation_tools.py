@@ -505,3 +505,23 @@ def test_resid_leaves_independence_untested_on_an_input_that_never_varies(system
     biased = hbjax.Hammerstein(model.backlash, hbjax.ARX(a=model.arx.a, b=1.5 * model.arx.b))
     r_biased = hbjax.resid(biased, v, y)
     assert np.isnan(r_biased.p_independence) and r_biased.p_mean < 1e-6 and not r_biased.passed
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compare_scores_an_exact_model_100_far_from_zero(seed):
+    """An output far from zero (a pressure of 1e5 Pa swinging by mPa): the exact model,
+    with the offset carried in its branches' constants (``y + o`` is the model whose
+    branches are raised by ``o A(1) / B(1)``), is scored 100 % from its estimated start at
+    offsets up to 1e7 output ranges (the start's search once lost 1.7 % to rounding).
+    Random paper-class systems, multisine inputs."""
+    rng = np.random.default_rng(seed)
+    s = pc.random_paper_system(rng, n=2, m=3)
+    v = pc.random_input(rng, "multisine", 1500, 1.5 * s["h_m"])
+    y = pc.simulate_numpy(s, v)[0]
+    lift = np.ptp(y) * (1.0 + np.sum(s["a"])) / np.sum(s["b"])
+    for ranges in (1e4, 1e6, 1e7):
+        shift = np.zeros(3)
+        shift[0] = ranges * lift
+        moved = hbjax.Hammerstein(hbjax.Backlash(s["c1"] + shift, s["c2"] + shift),
+                                  hbjax.ARX(s["a"], s["b"]))
+        assert float(hbjax.compare(moved, v, y + ranges * np.ptp(y)).fit) > 99.9999

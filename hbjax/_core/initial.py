@@ -115,10 +115,15 @@ def _estimate(model: Hammerstein, v, y, n=None):
     # Columns of 1/A that vanish within the record (a_na = 0) leave r singular: lstsq.
     solve = lambda res: jnp.linalg.lstsq(h, res)[0] if h.shape[1] else jnp.zeros(0, v.dtype)
 
+    # the residual's part the output lags cannot absorb
+    perp = lambda x: x - q @ (q.T @ x) if h.shape[1] else x
+
     def cost(u0):
         res = counted(y - model.simulate_trajectory(v, jnp.zeros_like(v), u0) - u0 * g)
-        proj = q.T @ res if h.shape[1] else jnp.zeros(0, v.dtype)
-        return jnp.sum(res**2) - jnp.sum(proj**2), res
+        # ||perp(res)||^2, not ||res||^2 - ||q^T res||^2: where the output sits far from
+        # zero the free run's start-up is huge and that difference cancels to rounding
+        # (an exact model 1e7 output ranges from zero scored 98.4 % for its start)
+        return jnp.sum(perp(res) ** 2), res
 
     bl = model.backlash
     p1, p2 = bl.p1(v[0]), bl.p2(v[0])
@@ -143,7 +148,6 @@ def _estimate(model: Hammerstein, v, y, n=None):
 
     # Beyond an edge of the band the play operator starts from that edge whatever u0 is,
     # and u0 is left only in the input lags, linearly: one least squares per side.
-    perp = lambda x: x - q @ (q.T @ x) if h.shape[1] else x
     g_perp = perp(g)
 
     def beyond(edge, side):
