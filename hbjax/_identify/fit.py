@@ -31,8 +31,8 @@ from .fit_criterion import (
 )
 from .fit_gauge import better_in_paper_gauge, gain_vanishes
 from .fit_starts import (
-    arx_given_backlash, canonical_labels, closing_band, closing_count, closing_positions,
-    random_backlash, swap_covariance, swap_perm,
+    arx_given_backlash, canonical_labels, canonical_result, closing_band, closing_count,
+    closing_positions, random_backlash,
 )
 from .._core.model import Hammerstein
 from .._core.params import flatten_params
@@ -127,19 +127,15 @@ class FitResult(AbstractRefinement):
 
 
 def _chosen(r, recordings, na: int, nb: int, m: int) -> dict:
-    """The fields of one start's :class:`RefineResult` as :class:`FitResult` reports them:
-    labels made canonical (:func:`canonical_labels`), with the covariance, the identified
-    flags and the active ranges swapped alongside."""
-    model, swap = canonical_labels(r.model, recordings)
-    ident = r.identified
+    """The fields of one start's :class:`RefineResult` as :class:`FitResult` reports them,
+    with labels made canonical (:func:`canonical_result`, in every gauge)."""
+    r = canonical_result(r, recordings)
     return dict(
-        model=model, result=r.result, stats=r.stats,
-        covariance=swap_covariance(r.covariance, swap, na, nb, m), noise_std=r.noise_std,
-        branches_cross=r.branches_cross, sim_fit=r.sim_fit, sim_fit_pooled=r.sim_fit_pooled,
-        stable=r.stable, identified=jnp.where(swap, ident[swap_perm(na, nb, m)], ident),
-        active_ranges=jnp.where(swap, r.active_ranges[::-1], r.active_ranges),
-        data_range=r.data_range, core_finish=r.core_finish, residual_p=r.residual_p,
-        min_sim_fit=r.min_sim_fit, loop_spread=r.loop_spread,
+        model=r.model, result=r.result, stats=r.stats, covariance=r.covariance,
+        noise_std=r.noise_std, branches_cross=r.branches_cross, sim_fit=r.sim_fit,
+        sim_fit_pooled=r.sim_fit_pooled, stable=r.stable, identified=r.identified,
+        active_ranges=r.active_ranges, data_range=r.data_range, core_finish=r.core_finish,
+        residual_p=r.residual_p, min_sim_fit=r.min_sim_fit, loop_spread=r.loop_spread,
         loop_tolerance=r.loop_tolerance)
 
 

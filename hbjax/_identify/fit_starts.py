@@ -3,6 +3,7 @@ data, the linear block given a band (least squares, eq. (10)), and the canonical
 of the branches of a fitted model (with its covariance swapped alongside).
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -100,6 +101,19 @@ def canonical_labels(model: Hammerstein, recordings) -> tuple[Hammerstein, Array
     c1 = jnp.where(swap, bl.c2, bl.c1)
     c2 = jnp.where(swap, bl.c1, bl.c2)
     return Hammerstein(Backlash(c1, c2), model.arx), swap
+
+
+def canonical_result(res, recordings):
+    """``res`` (a :class:`hbjax.RefineResult` or :class:`hbjax.FitResult`) with the labels
+    of :func:`canonical_labels`, and what follows the labels swapped alongside: the
+    covariance, the identified flags and the branches' active ranges. Traceable."""
+    na, nb, m = res.model.arx.na, res.model.arx.nb, res.model.backlash.m
+    model, swap = canonical_labels(res.model, recordings)
+    return eqx.tree_at(
+        lambda r: (r.model, r.covariance, r.identified, r.active_ranges), res,
+        (model, swap_covariance(res.covariance, swap, na, nb, m),
+         jnp.where(swap, res.identified[swap_perm(na, nb, m)], res.identified),
+         jnp.where(swap, res.active_ranges[::-1], res.active_ranges)))
 
 
 def swap_perm(na, nb, m):

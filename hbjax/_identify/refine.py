@@ -26,6 +26,7 @@ from .adequacy import LEVEL
 from .centring import (at_better_start, in_recorded_coordinates, less_centres, refine_centres,
                        to_centred)
 from .criteria import PREDICTION, SIMULATION, lower_is_p1, sample_count
+from .fit_starts import canonical_result
 from .quality import SIM_FIT_FLOOR
 from .recordings import (as_recordings, check_branch_degree, check_criterion, check_h_m, check_model,
                          total_samples)
@@ -94,7 +95,12 @@ def refine_traceable(model: Hammerstein, recordings, *, criterion: str = "predic
                           atol=atol, statistics=statistics, min_sim_fit=min_sim_fit,
                           initial_state=initial_state, stable=stable, core_start=core_start,
                           core_only=core_only)
-    return result_from_unit(res, unit)
+    res = result_from_unit(res, unit)
+    # On the core operator the labels are interchangeable (L = min, H = max): a solve may
+    # end with P1 and P2 exchanged, the same model under the other names. Under the
+    # static-gain gauge the names are put back (P1 the branch a rising input drives onto);
+    # the paper's gauge P2(-h_m) - P1(h_m) = 1 names the branches itself.
+    return canonical_result(res, recordings) if res.gauge == "static_gain" else res
 
 
 def _refine_in_unit(model, recordings, *, criterion, h_m, max_steps, rtol, atol, statistics,
@@ -249,7 +255,8 @@ def residuals_suspect(res, records, criterion) -> bool:
             continue
         # (the play state its criterion starts from: the convention's)
         r = resid(res.model, np.asarray(v), np.asarray(y), lags=lags, initial_state="zero")
-        if not (r.p_whiteness >= level and r.p_independence >= level):
+        # (an input that never varies leaves independence untested: NaN, not a rejection)
+        if not (r.p_whiteness >= level and not r.p_independence < level):
             return True
     return False
 
