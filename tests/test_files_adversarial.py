@@ -575,3 +575,22 @@ def test_a_channel_named_twice_in_a_saved_file_is_refused_not_merged(tmp_path):
     p.write_text(text)
     with pytest.raises(ValueError, match=r"channel 'force' is named by two header columns"):
         hbjax.load_recording(p)
+
+
+def test_a_model_file_saved_with_a_byte_order_mark_is_read(tmp_path):
+    """Windows editors often save UTF-8 with a byte-order mark; the model reads back the same."""
+    path = hbjax.save_model(tmp_path / "m.json", M)
+    marked = tmp_path / "bom.json"
+    marked.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    back = hbjax.load_model(marked)
+    np.testing.assert_array_equal(hbjax.flatten_params(back), hbjax.flatten_params(M))
+
+
+def test_a_folder_that_takes_no_new_file_is_named_with_the_users_file(tmp_path):
+    """Where the temporary file cannot be made (here a folder of /proc), the error names the
+    file asked for, not the hidden temporary one."""
+    target = pathlib.Path("/proc/hbjax-no-such.csv")
+    with pytest.raises(OSError, match=r"cannot write '/proc/hbjax-no-such.csv': its folder "
+                                      r"'/proc' takes no new file") as info:
+        hbjax.save_recording(target, hbjax.Recording([1.0, 2.0], [3.0, 4.0]))
+    assert ".hbjax-" not in str(info.value)

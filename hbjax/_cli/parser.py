@@ -19,7 +19,7 @@ from . import montecarlo as montecarlo
 _EPILOG_RECORDINGS = (
     "recording files: CSV with a header row; by default the first column is the input v and "
     "the second the output y; --input NAME / --output NAME select columns by header name "
-    "(or 0-based index)."
+    "(or 0-based index; a negative index counts from the last column, -1 the last)."
 )
 
 

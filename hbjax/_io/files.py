@@ -155,9 +155,13 @@ def _default_mode() -> int:
     return 0o666 & ~umask
 
 
-def _fill_temporary(folder: pathlib.Path, payload: bytes) -> str:
+def _fill_temporary(folder: pathlib.Path, payload: bytes, target: pathlib.Path) -> str:
     # A short name: a 255-character target name must still leave room for the temporary one.
-    fd, tmp = tempfile.mkstemp(prefix=".hbjax-", suffix=".tmp", dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".hbjax-", suffix=".tmp", dir=folder)
+    except OSError as exc:  # named by the user's file, not by the hidden temporary one
+        raise type(exc)(f"cannot write {str(target)!r}: its folder {str(folder)!r} takes no "
+                        f"new file ({exc.strerror}).") from None
     try:
         os.chmod(tmp, _default_mode())  # mkstemp makes it private (0600)
         with os.fdopen(fd, "wb") as fh:
@@ -242,7 +246,7 @@ def atomic_write_many(items, *, overwrite: bool = False, hint: str = HINT):
         for p, data in regular:
             target = _target(p)
             folder = target.parent if str(target.parent) else pathlib.Path(".")
-            temps.append((target, _fill_temporary(folder, data), data))
+            temps.append((target, _fill_temporary(folder, data, target), data))
         for target, tmp, data in temps:
             existed = os.path.lexists(target)
             _publish(tmp, target, data, overwrite, hint)

@@ -244,7 +244,7 @@ def load_model(path, *, classes=()) -> AbstractModel:
                 f"{p}: larger than {MAX_FILE_BYTES // 2**20} MiB; not an hbjax model file "
                 "(models of any sensible order are far smaller)."
             )
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")  # (a byte-order mark, as Windows editors save, is read)
     except UnicodeDecodeError:
         raise ModelFileError(f"{p}: not a text file; expected an hbjax JSON model file.") from None
     return model_from_json(text, classes=classes, source=str(p))
