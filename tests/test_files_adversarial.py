@@ -594,3 +594,12 @@ def test_a_folder_that_takes_no_new_file_is_named_with_the_users_file(tmp_path):
                                       r"'/proc' takes no new file") as info:
         hbjax.save_recording(target, hbjax.Recording([1.0, 2.0], [3.0, 4.0]))
     assert ".hbjax-" not in str(info.value)
+
+
+@pytest.mark.parametrize("version", ['"1"', "true", "1.0"])
+def test_a_format_version_that_is_no_integer_is_named_as_such(tmp_path, version):
+    text = hbjax.save_model(tmp_path / "m.json", M).read_text()
+    bad = tmp_path / "v.json"
+    bad.write_text(text.replace('"format_version": 1', f'"format_version": {version}'))
+    with pytest.raises(hbjax.ModelFileError, match="format_version must be an integer"):
+        hbjax.load_model(bad)

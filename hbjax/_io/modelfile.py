@@ -197,6 +197,10 @@ def _model_from_json(text, classes, source):
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ModelFileError(f"{source}: not an hbjax model file (no \"format\": \"{FORMAT}\").")
     version = doc.get("format_version")
+    if not isinstance(version, int) or isinstance(version, bool):
+        raise ModelFileError(
+            f"{source}: model-file format_version must be an integer (this hbjax reads 1 to "
+            f"{FORMAT_VERSION}), got {version!r} ({type(version).__name__}).")
     if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= FORMAT_VERSION:
         raise ModelFileError(
             f"{source}: model-file format_version {version!r} is not supported by this hbjax "
