@@ -13,6 +13,7 @@ import signal
 import stat
 import subprocess
 import sys
+import warnings
 
 import jax
 import numpy as np
@@ -603,3 +604,19 @@ def test_a_format_version_that_is_no_integer_is_named_as_such(tmp_path, version)
     bad.write_text(text.replace('"format_version": 1', f'"format_version": {version}'))
     with pytest.raises(hbjax.ModelFileError, match="format_version must be an integer"):
         hbjax.load_model(bad)
+
+
+@pytest.mark.parametrize("dtype, value", [("float32", 1e308), ("float32", -3.5e38),
+                                          ("int32", 2**31), ("int64", -10**30)])
+def test_a_value_beyond_its_dtype_is_named_without_a_numpy_warning(tmp_path, dtype, value):
+    obj = json.loads(hbjax.save_model(tmp_path / "m.json", M).read_text())
+    obj["model"]["fields"]["arx"]["fields"]["a"] = {"array": [value, 0.5 if dtype[0] == "f"
+                                                              else 1],
+                                                    "dtype": dtype, "shape": [2], "kind": "jax"}
+    bad = tmp_path / "big.json"
+    bad.write_text(json.dumps(obj))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # NumPy's overflow warning would fail the test
+        with pytest.raises(hbjax.ModelFileError,
+                           match=rf"a\[0\]` \(.+\) is too large for its dtype {dtype}"):
+            hbjax.load_model(bad)

@@ -54,6 +54,23 @@ def _decode_float(x, where):
     raise ModelFileError(f"`{where}` must be a number, got {x!r}.")
 
 
+def _check_range(values, dtype, where):
+    """A value its declared dtype cannot hold is named, not rounded to inf (float) or left
+    to NumPy's overflow (integer)."""
+    info = np.finfo(dtype) if dtype.startswith("float") else (
+        np.iinfo(dtype) if dtype.startswith("int") else None)
+    if info is None:
+        return
+    kind = float if dtype.startswith("float") else int
+    low, high = kind(info.min), kind(info.max)  # (Python numbers: no cast of x to dtype)
+    for i, x in enumerate(values):
+        if (isinstance(x, int) or math.isfinite(x)) and not low <= x <= high:
+            shown = f"{x:.6g}" if isinstance(x, float) else f"{float(x):.6g}" if len(
+                str(x)) < 300 else "an integer of %d digits" % len(str(abs(x)))
+            raise ModelFileError(f"`{where}[{i}]` ({shown}) is too large for its dtype "
+                                 f"{dtype} (range {info.min:g} to {info.max:g}).")
+
+
 def _decode_array(obj, where):
     if set(obj) - {"array", "dtype", "shape", "kind"} or not {"array", "dtype", "shape"} <= set(obj):
         raise ModelFileError(f"`{where}` is a malformed array entry (keys {sorted(obj)}).")
@@ -81,6 +98,7 @@ def _decode_array(obj, where):
         if not all(isinstance(x, int) and not isinstance(x, bool) for x in data):
             raise ModelFileError(f"`{where}` must hold integers.")
         values = data
+    _check_range(values, dtype, where)
     arr = np.array(values, dtype=dtype).reshape(shape)
     if kind == "numpy":
         return arr
